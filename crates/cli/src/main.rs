@@ -1,0 +1,42 @@
+//! The `stripe3d` command: thin wiring of the library crates. See `stripe3d --help`.
+
+mod simulate;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+/// stripe3d: laser-stripe 3-D inspection of parts on a conveyor.
+#[derive(Debug, Parser)]
+#[command(name = "stripe3d", version, about, long_about = None, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run the main job end to end on the built-in demo scene.
+    Demo {
+        /// Folder for everything the demo writes.
+        #[arg(long, default_value = "stripe3d-demo")]
+        out: PathBuf,
+    },
+    /// Render laser-stripe frames of a scene with exact ground truth.
+    Simulate(simulate::SimulateArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result: Result<()> = match cli.command {
+        Command::Demo { out } => simulate::demo(&out),
+        Command::Simulate(args) => simulate::simulate(&args).map(|_| ()),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

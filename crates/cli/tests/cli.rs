@@ -1,0 +1,131 @@
+//! End-to-end tests of the `stripe3d` command: the contract and the refusals.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn stripe3d(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_stripe3d"))
+        .args(args)
+        .output()
+        .expect("run stripe3d")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn simulate_writes_frames_truth_and_manifest() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("run");
+    let o = stripe3d(&[
+        "simulate",
+        "--scene",
+        "demo",
+        "--frames",
+        "2",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in [
+        "frames/frame_00000.png",
+        "frames/frame_00001.png",
+        "truth/stripes.csv",
+        "truth/heightmap.tiff",
+        "truth/heightmap.json",
+        "truth/heightmap.png",
+        "truth/defects.json",
+        "sensor.toml",
+        "scene.toml",
+        "manifest.json",
+    ] {
+        assert!(out.join(f).is_file(), "missing {f}");
+    }
+    let csv = std::fs::read_to_string(out.join("truth/stripes.csv")).expect("csv");
+    assert!(csv.starts_with("frame,row,stripe,u,x_mm,y_mm,z_mm,part_x_mm\n"));
+    assert!(csv.lines().count() > 5000);
+    // The written sensor and scene reproduce the run.
+    let again = dir.path().join("again");
+    let o = stripe3d(&[
+        "simulate",
+        "--scene",
+        out.join("scene.toml").to_str().expect("utf8"),
+        "--sensor",
+        out.join("sensor.toml").to_str().expect("utf8"),
+        "--frames",
+        "2",
+        "--out",
+        again.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(out.join("frames/frame_00001.png")).expect("a"),
+        std::fs::read(again.join("frames/frame_00001.png")).expect("b")
+    );
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write");
+    p.to_str().expect("utf8").to_string()
+}
+
+#[test]
+fn bad_sensor_files_are_refused_with_file_line_and_field() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("o");
+    let out = out.to_str().expect("utf8");
+    let missing = dir.path().join("nope.toml");
+    let o = stripe3d(&[
+        "simulate",
+        "--sensor",
+        missing.to_str().expect("utf8"),
+        "--out",
+        out,
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("nope.toml"), "{}", stderr(&o));
+
+    let bad = write(
+        dir.path(),
+        "bad.toml",
+        "[camera]\nwidth = 648\nheight = 480\nfx = 0\nfy = 1\ncx = 1\ncy = 1\nheight_mm = 100\n[laser]\nstripes = 3\n",
+    );
+    let o = stripe3d(&["simulate", "--sensor", &bad, "--out", out]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("bad.toml:4: camera.fx"), "{e}");
+
+    let malformed = write(dir.path(), "malformed.toml", "[camera]\nwidth = \"wide\"\n");
+    let o = stripe3d(&["simulate", "--sensor", &malformed, "--out", out]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("malformed.toml:2"), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("panicked"));
+}
+
+#[test]
+fn unwritable_output_and_bad_arguments_are_refused() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let file = write(dir.path(), "afile", "x");
+    let o = stripe3d(&["simulate", "--frames", "1", "--out", &format!("{file}/sub")]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("cannot write"), "{}", stderr(&o));
+
+    let out = dir.path().join("o");
+    let out = out.to_str().expect("utf8");
+    let o = stripe3d(&["simulate", "--scene", "no-such-scene", "--out", out]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no built-in scene"), "{}", stderr(&o));
+
+    let enc = write(dir.path(), "enc.txt", "0\n0.5\n# a comment\n0.2\n");
+    let o = stripe3d(&["simulate", "--encoder", &enc, "--out", out]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("enc.txt:4"), "{}", stderr(&o));
+
+    let o = stripe3d(&["simulate", "--frames", "0", "--out", out]);
+    assert!(!o.status.success());
+    let o = stripe3d(&["simulate", "--bits", "9", "--out", out]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("camera.bits"), "{}", stderr(&o));
+}

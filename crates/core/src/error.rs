@@ -1,0 +1,42 @@
+//! The error type of the algorithm core.
+
+use thiserror::Error;
+
+/// Everything the core can refuse. Fields name what was wrong so a caller can build a precise message.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum CoreError {
+    /// An image buffer is too small for the width, height and stride it was given.
+    #[error(
+        "image buffer holds {len} pixels but {width}x{height} with stride {stride} needs {needed}"
+    )]
+    BufferTooSmall {
+        /// Pixels in the buffer.
+        len: usize,
+        /// Image width in pixels.
+        width: usize,
+        /// Image height in pixels.
+        height: usize,
+        /// Row stride in pixels.
+        stride: usize,
+        /// Pixels the geometry needs.
+        needed: usize,
+    },
+    /// The row stride is smaller than the width.
+    #[error("row stride {stride} is smaller than the width {width}")]
+    StrideTooSmall {
+        /// Row stride in pixels.
+        stride: usize,
+        /// Image width in pixels.
+        width: usize,
+    },
+    /// A sensor description field holds an impossible value.
+    #[error("{field} = {value}: {reason}")]
+    InvalidSensor {
+        /// Dotted field name as written in `sensor.toml`, e.g. `camera.fx`.
+        field: &'static str,
+        /// The offending value, as text.
+        value: String,
+        /// What is wrong and what would be right.
+        reason: String,
+    },
+}

@@ -1,0 +1,249 @@
+//! Borrowed and owned row-major images with a row stride.
+//!
+//! [`ImageView`] borrows camera buffers (with padding at the end of each row) without a copy; [`Image`] owns its
+//! pixels and lends views. Pixels are `u8` or `u16` ([`Pixel`]).
+
+use crate::CoreError;
+
+/// A grey-level pixel type: 8- or 16-bit unsigned.
+pub trait Pixel: Copy + Default + PartialOrd + Send + Sync + std::fmt::Debug + 'static {
+    /// The largest representable value.
+    const MAX_VALUE: u16;
+    /// The value as `f32`.
+    fn to_f32(self) -> f32;
+    /// The value as `u32`.
+    fn to_u32(self) -> u32;
+    /// Saturating conversion from a (rounded) `f32`.
+    fn from_f32_saturating(v: f32) -> Self;
+}
+
+impl Pixel for u8 {
+    const MAX_VALUE: u16 = u8::MAX as u16;
+    #[inline]
+    fn to_f32(self) -> f32 {
+        f32::from(self)
+    }
+    #[inline]
+    fn to_u32(self) -> u32 {
+        u32::from(self)
+    }
+    #[inline]
+    fn from_f32_saturating(v: f32) -> Self {
+        // `as` saturates and maps NaN to 0.
+        v.round() as u8
+    }
+}
+
+impl Pixel for u16 {
+    const MAX_VALUE: u16 = u16::MAX;
+    #[inline]
+    fn to_f32(self) -> f32 {
+        f32::from(self)
+    }
+    #[inline]
+    fn to_u32(self) -> u32 {
+        u32::from(self)
+    }
+    #[inline]
+    fn from_f32_saturating(v: f32) -> Self {
+        v.round() as u16
+    }
+}
+
+/// A borrowed row-major image: `height` rows of `width` pixels, each row starting `stride` pixels after the last.
+#[derive(Debug, Clone, Copy)]
+pub struct ImageView<'a, T> {
+    data: &'a [T],
+    width: usize,
+    height: usize,
+    stride: usize,
+}
+
+impl<'a, T: Pixel> ImageView<'a, T> {
+    /// Borrows `data` as an image. The last row need not be padded to the full stride.
+    ///
+    /// ```
+    /// # use stripe3d_core::ImageView;
+    /// let buffer = [1u8, 2, 3, 0, 4, 5, 6, 0];
+    /// let view = ImageView::new(&buffer, 3, 2, 4).unwrap();
+    /// assert_eq!(view.row(1), &[4, 5, 6]);
+    /// ```
+    pub fn new(
+        data: &'a [T],
+        width: usize,
+        height: usize,
+        stride: usize,
+    ) -> Result<Self, CoreError> {
+        if stride < width {
+            return Err(CoreError::StrideTooSmall { stride, width });
+        }
+        let needed = if height == 0 {
+            0
+        } else {
+            (height - 1) * stride + width
+        };
+        if data.len() < needed {
+            return Err(CoreError::BufferTooSmall {
+                len: data.len(),
+                width,
+                height,
+                stride,
+                needed,
+            });
+        }
+        Ok(Self {
+            data,
+            width,
+            height,
+            stride,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Row stride in pixels.
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Row `y` as a slice of `width` pixels. Panics when `y >= height` (a programming error, not an input error).
+    #[inline]
+    pub fn row(&self, y: usize) -> &'a [T] {
+        assert!(
+            y < self.height,
+            "row {y} out of range (height {})",
+            self.height
+        );
+        &self.data[y * self.stride..y * self.stride + self.width]
+    }
+
+    /// The pixel at column `x`, row `y`, or `None` outside the image.
+    #[inline]
+    pub fn get(&self, x: usize, y: usize) -> Option<T> {
+        if x < self.width && y < self.height {
+            self.data.get(y * self.stride + x).copied()
+        } else {
+            None
+        }
+    }
+}
+
+/// An owned row-major image without padding.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image<T> {
+    data: Vec<T>,
+    width: usize,
+    height: usize,
+}
+
+impl<T: Pixel> Image<T> {
+    /// A `width` x `height` image of zeros.
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            data: vec![T::default(); width * height],
+            width,
+            height,
+        }
+    }
+
+    /// Takes ownership of `data` (row-major, no padding).
+    pub fn from_vec(width: usize, height: usize, data: Vec<T>) -> Result<Self, CoreError> {
+        let needed = width * height;
+        if data.len() != needed {
+            return Err(CoreError::BufferTooSmall {
+                len: data.len(),
+                width,
+                height,
+                stride: width,
+                needed,
+            });
+        }
+        Ok(Self {
+            data,
+            width,
+            height,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// The pixels, row-major.
+    pub fn data(&self) -> &[T] {
+        &self.data
+    }
+
+    /// The pixels, row-major, mutable.
+    pub fn data_mut(&mut self) -> &mut [T] {
+        &mut self.data
+    }
+
+    /// Consumes the image and returns its pixels.
+    pub fn into_vec(self) -> Vec<T> {
+        self.data
+    }
+
+    /// A borrowed view of the whole image.
+    pub fn view(&self) -> ImageView<'_, T> {
+        ImageView {
+            data: &self.data,
+            width: self.width,
+            height: self.height,
+            stride: self.width,
+        }
+    }
+
+    /// The pixel at column `x`, row `y`, or `None` outside the image.
+    pub fn get(&self, x: usize, y: usize) -> Option<T> {
+        self.view().get(x, y)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn view_with_stride_reads_rows_and_refuses_short_buffers() {
+        let data: Vec<u16> = (0..11).collect();
+        let v = ImageView::new(&data, 3, 3, 4).expect("fits");
+        assert_eq!(v.row(0), &[0, 1, 2]);
+        assert_eq!(v.row(2), &[8, 9, 10]);
+        assert_eq!(v.get(2, 1), Some(6));
+        assert_eq!(v.get(3, 1), None);
+        assert_eq!(v.get(0, 3), None);
+        assert!(matches!(
+            ImageView::new(&data[..10], 3, 3, 4),
+            Err(CoreError::BufferTooSmall { needed: 11, .. })
+        ));
+        assert!(matches!(
+            ImageView::new(&data, 4, 1, 3),
+            Err(CoreError::StrideTooSmall { .. })
+        ));
+        assert!(ImageView::<u8>::new(&[], 0, 0, 0).is_ok());
+    }
+
+    #[test]
+    fn owned_image_checks_its_length() {
+        assert!(Image::<u8>::from_vec(2, 2, vec![0; 3]).is_err());
+        let img = Image::<u8>::from_vec(2, 2, vec![1, 2, 3, 4]).expect("fits");
+        assert_eq!(img.view().row(1), &[3, 4]);
+        assert_eq!(u8::from_f32_saturating(300.0), 255);
+        assert_eq!(u16::from_f32_saturating(-3.0), 0);
+    }
+}

@@ -1,0 +1,18 @@
+//! # stripe3d-core
+//!
+//! The algorithms of stripe3d, with no I/O at all: borrowed image views ([`image`]), the sensor geometry and the
+//! conventions every crate shares ([`sensor`]). Later stages (extraction, coding, triangulation, accumulation,
+//! characterization, detection) live here as modules named after the stage.
+//!
+//! Conventions (see `DESIGN.md`): millimetres, seconds, radians; world frame z up from the belt, x along conveyor
+//! travel, right-handed, origin on the belt below the camera's optical centre; the camera looks straight down with
+//! image u along +x and v along −y; pixel centres at integer coordinates.
+#![deny(missing_docs)]
+
+pub mod error;
+pub mod image;
+pub mod sensor;
+
+pub use error::CoreError;
+pub use image::{Image, ImageView, Pixel};
+pub use sensor::{Camera, Conveyor, Laser, LaserPlane, Sensor};

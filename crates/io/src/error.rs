@@ -1,0 +1,57 @@
+//! The error type of the I/O crate.
+
+use std::path::PathBuf;
+use thiserror::Error;
+
+/// What reading or writing a file can go wrong with. Each variant names the file.
+#[derive(Debug, Error)]
+pub enum IoError {
+    /// The file could not be read.
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// The file or folder could not be written.
+    #[error("{path}: cannot write: {source} (check that the folder exists and is writable)")]
+    Write {
+        /// The file or folder.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// A text file is malformed at a line.
+    #[error("{path}:{line}:{column}: {message}")]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// What is wrong there.
+        message: String,
+    },
+    /// A field holds a value that is well-formed but impossible.
+    #[error("{path}{}: {field}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line of the field, when it could be found.
+        line: Option<usize>,
+        /// Dotted field name.
+        field: String,
+        /// What is wrong and what would be right.
+        message: String,
+    },
+    /// An image file is not a usable image.
+    #[error("{path}: {message}")]
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}

@@ -1,0 +1,209 @@
+//! Image files: grey PNG (8/16-bit) and float32 TIFF writing, colour-mapped previews, and reading PNG, PGM and
+//! TIFF frames.
+
+use crate::{IoError, write_atomic};
+use image::{ExtendedColorType, ImageEncoder, codecs::png::PngEncoder};
+use std::io::Cursor;
+use std::path::Path;
+use stripe3d_core::Image;
+
+/// Largest image side accepted when reading, pixels (a guard against decompression bombs).
+pub const MAX_READ_SIDE: u32 = 16_384;
+
+fn encode_err(path: &Path, e: impl std::fmt::Display) -> IoError {
+    IoError::Image {
+        path: path.to_path_buf(),
+        message: format!("cannot encode: {e}"),
+    }
+}
+
+/// Writes a grey image as PNG: 8-bit when `bits` is 8, else 16-bit with the values as they are.
+pub fn write_grey_png(path: &Path, img: &Image<u16>, bits: u8) -> Result<(), IoError> {
+    let mut buf = Vec::new();
+    let (w, h) = (img.width() as u32, img.height() as u32);
+    let enc = PngEncoder::new(Cursor::new(&mut buf));
+    if bits <= 8 {
+        let bytes: Vec<u8> = img.data().iter().map(|&v| v.min(255) as u8).collect();
+        enc.write_image(&bytes, w, h, ExtendedColorType::L8)
+            .map_err(|e| encode_err(path, e))?;
+    } else {
+        let bytes: Vec<u8> = img.data().iter().flat_map(|v| v.to_ne_bytes()).collect();
+        enc.write_image(&bytes, w, h, ExtendedColorType::L16)
+            .map_err(|e| encode_err(path, e))?;
+    }
+    write_atomic(path, &buf)
+}
+
+/// Writes an RGB image (row-major, 3 bytes a pixel) as PNG.
+pub fn write_rgb_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), IoError> {
+    let mut buf = Vec::new();
+    PngEncoder::new(Cursor::new(&mut buf))
+        .write_image(rgb, width as u32, height as u32, ExtendedColorType::Rgb8)
+        .map_err(|e| encode_err(path, e))?;
+    write_atomic(path, &buf)
+}
+
+/// Writes float32 samples (row-major, NaN allowed) as a one-channel TIFF.
+pub fn write_f32_tiff(
+    path: &Path,
+    width: usize,
+    height: usize,
+    data: &[f32],
+) -> Result<(), IoError> {
+    let mut cursor = Cursor::new(Vec::new());
+    let mut enc = tiff::encoder::TiffEncoder::new(&mut cursor).map_err(|e| encode_err(path, e))?;
+    enc.write_image::<tiff::encoder::colortype::Gray32Float>(width as u32, height as u32, data)
+        .map_err(|e| encode_err(path, e))?;
+    write_atomic(path, cursor.get_ref())
+}
+
+/// A perceptually ordered colour map (dark blue, through teal and green, to yellow), `t` in [0, 1].
+pub fn colormap(t: f64) -> [u8; 3] {
+    const STOPS: [[f64; 3]; 5] = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * (STOPS.len() - 1) as f64;
+    let i = (t.floor() as usize).min(STOPS.len() - 2);
+    let f = t - i as f64;
+    let mut out = [0u8; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        *o = (STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f).round() as u8;
+    }
+    out
+}
+
+/// Colour-maps a height grid (rows along +y) into an RGB picture with +y up, NaN in grey.
+pub fn height_preview(width: usize, height: usize, z: &[f32], lo: f64, hi: f64) -> Vec<u8> {
+    let mut rgb = Vec::with_capacity(width * height * 3);
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    for row in (0..height).rev() {
+        for col in 0..width {
+            let v = f64::from(z[row * width + col]);
+            rgb.extend_from_slice(&if v.is_nan() {
+                [128, 128, 128]
+            } else {
+                colormap((v - lo) / span)
+            });
+        }
+    }
+    rgb
+}
+
+/// A frame read from disk: pixels widened to 16 bits and the bit depth of the file.
+#[derive(Debug, Clone)]
+pub struct LoadedFrame {
+    /// The pixels.
+    pub image: Image<u16>,
+    /// 8 or 16.
+    pub bits: u8,
+}
+
+/// Reads a grey frame (PNG 8/16-bit, PGM, TIFF). Colour images are refused: a stripe camera is monochrome and a
+/// silent conversion would hide a wrong file.
+pub fn read_frame(path: &Path) -> Result<LoadedFrame, IoError> {
+    let bad = |message: String| IoError::Image {
+        path: path.to_path_buf(),
+        message,
+    };
+    let reader = image::ImageReader::open(path)
+        .map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .with_guessed_format()
+        .map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let (w, h) = reader
+        .into_dimensions()
+        .map_err(|e| bad(format!("not a readable PNG, PGM or TIFF image: {e}")))?;
+    if w == 0 || h == 0 || w > MAX_READ_SIDE || h > MAX_READ_SIDE {
+        return Err(bad(format!(
+            "{w}x{h} pixels: each side must be 1 to {MAX_READ_SIDE}"
+        )));
+    }
+    let reader = image::ImageReader::open(path)
+        .map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .with_guessed_format()
+        .map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let img = reader
+        .decode()
+        .map_err(|e| bad(format!("cannot decode (truncated or damaged?): {e}")))?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    match img {
+        image::DynamicImage::ImageLuma8(g) => Ok(LoadedFrame {
+            image: Image::from_vec(w, h, g.into_raw().into_iter().map(u16::from).collect())
+                .map_err(|e| bad(e.to_string()))?,
+            bits: 8,
+        }),
+        image::DynamicImage::ImageLuma16(g) => Ok(LoadedFrame {
+            image: Image::from_vec(w, h, g.into_raw()).map_err(|e| bad(e.to_string()))?,
+            bits: 16,
+        }),
+        other => Err(bad(format!(
+            "is a {:?} image; stripe3d reads grey (monochrome) 8- or 16-bit frames only: convert it to grey first",
+            other.color()
+        ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_round_trips_at_8_and_16_bits() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let img = Image::from_vec(3, 2, vec![0u16, 1, 255, 7, 100, 200]).expect("img");
+        let p8 = dir.path().join("a.png");
+        write_grey_png(&p8, &img, 8).expect("write");
+        let back = read_frame(&p8).expect("read");
+        assert_eq!((back.bits, back.image.clone()), (8, img.clone()));
+        let img16 = Image::from_vec(2, 2, vec![0u16, 1023, 4095, 65535]).expect("img");
+        let p16 = dir.path().join("b.png");
+        write_grey_png(&p16, &img16, 12).expect("write");
+        let back = read_frame(&p16).expect("read");
+        assert_eq!((back.bits, back.image), (16, img16));
+    }
+
+    #[test]
+    fn bad_files_are_refused_with_their_name() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let p = dir.path().join("junk.png");
+        std::fs::write(&p, b"\x89PNG\r\n\x1a\nnot really").expect("write");
+        let e = read_frame(&p).expect_err("junk");
+        assert!(e.to_string().contains("junk.png"), "{e}");
+        let e = read_frame(&dir.path().join("missing.png")).expect_err("missing");
+        assert!(matches!(e, IoError::Read { .. }));
+        let rgb = dir.path().join("rgb.png");
+        write_rgb_png(&rgb, 1, 1, &[1, 2, 3]).expect("write");
+        assert!(
+            read_frame(&rgb)
+                .expect_err("colour")
+                .to_string()
+                .contains("grey")
+        );
+    }
+
+    #[test]
+    fn colormap_runs_dark_to_bright() {
+        let lum = |c: [u8; 3]| u32::from(c[0]) + u32::from(c[1]) + u32::from(c[2]);
+        assert!(lum(colormap(0.0)) < lum(colormap(0.5)) && lum(colormap(0.5)) < lum(colormap(1.0)));
+        assert_eq!(colormap(f64::NAN), colormap(0.0));
+    }
+}
