@@ -1,5 +1,6 @@
 //! The `stripe3d` command: thin wiring of the library crates. See `stripe3d --help`.
 
+mod fuzzy;
 mod simulate;
 
 use anyhow::Result;
@@ -24,6 +25,9 @@ enum Command {
     },
     /// Render laser-stripe frames of a scene with exact ground truth.
     Simulate(simulate::SimulateArgs),
+    /// Fuzzy engines (FLL, FCL): evaluate, convert.
+    #[command(subcommand)]
+    Fuzzy(fuzzy::FuzzyCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -31,6 +35,7 @@ fn main() -> std::process::ExitCode {
     let result: Result<()> = match cli.command {
         Command::Demo { out } => simulate::demo(&out),
         Command::Simulate(args) => simulate::simulate(&args).map(|_| ()),
+        Command::Fuzzy(cmd) => fuzzy::run(&cmd),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
