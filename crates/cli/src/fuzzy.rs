@@ -33,25 +33,42 @@ pub enum FuzzyCommand {
 
 fn located(path: &Path, e: FuzzyError) -> anyhow::Error {
     match e {
-        FuzzyError::Syntax { line, message } if line > 0 => anyhow::anyhow!("{}:{line}: {message}", path.display()),
+        FuzzyError::Syntax { line, message } if line > 0 => {
+            anyhow::anyhow!("{}:{line}: {message}", path.display())
+        }
         other => anyhow::anyhow!("{}: {other}", path.display()),
     }
 }
 
 /// Loads an engine from an FLL or FCL file (by extension, or by content when the extension says neither).
 pub fn load_engine(path: &Path) -> Result<Engine> {
-    let meta = std::fs::metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let meta =
+        std::fs::metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;
     if meta.len() > fll::MAX_FLL_BYTES as u64 {
-        bail!("{}: {} bytes is larger than an engine may be ({} bytes)", path.display(), meta.len(), fll::MAX_FLL_BYTES);
+        bail!(
+            "{}: {} bytes is larger than an engine may be ({} bytes)",
+            path.display(),
+            meta.len(),
+            fll::MAX_FLL_BYTES
+        );
     }
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read as text", path.display()))?;
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read as text", path.display()))?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
     let is_fcl = match ext.as_deref() {
         Some("fcl") => true,
         Some("fll") => false,
         _ => text.contains("FUNCTION_BLOCK"),
     };
-    if is_fcl { fcl::read(&text) } else { fll::read(&text) }.map_err(|e| located(path, e))
+    if is_fcl {
+        fcl::read(&text)
+    } else {
+        fll::read(&text)
+    }
+    .map_err(|e| located(path, e))
 }
 
 /// Runs `stripe3d fuzzy ...`.
@@ -71,7 +88,10 @@ pub fn run(cmd: &FuzzyCommand) -> Result<()> {
                 }
                 None => {
                     let mut s = String::new();
-                    std::io::stdin().take(MAX_TABLE_BYTES).read_to_string(&mut s).context("standard input")?;
+                    std::io::stdin()
+                        .take(MAX_TABLE_BYTES)
+                        .read_to_string(&mut s)
+                        .context("standard input")?;
                     ("<stdin>".to_string(), s)
                 }
             };

@@ -129,3 +129,92 @@ fn unwritable_output_and_bad_arguments_are_refused() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("camera.bits"), "{}", stderr(&o));
 }
+
+const DIMMER_FLL: &str = "Engine: dimmer
+InputVariable: Ambient
+  range: 0 1
+  term: DARK Triangle 0 0.25 0.5
+  term: MEDIUM Triangle 0.25 0.5 0.75
+  term: BRIGHT Triangle 0.5 0.75 1
+OutputVariable: Power
+  range: 0 1
+  aggregation: Maximum
+  defuzzifier: Centroid 200
+  default: nan
+  term: LOW Triangle 0 0.25 0.5
+  term: MEDIUM Triangle 0.25 0.5 0.75
+  term: HIGH Triangle 0.5 0.75 1
+RuleBlock:
+  implication: Minimum
+  rule: if Ambient is DARK then Power is HIGH
+  rule: if Ambient is MEDIUM then Power is MEDIUM
+  rule: if Ambient is BRIGHT then Power is LOW
+";
+
+#[test]
+fn fuzzy_eval_follows_its_contract() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let engine = write(dir.path(), "dimmer.fll", DIMMER_FLL);
+    // Extra columns are ignored; columns are matched by name, in any order.
+    let inputs = write(dir.path(), "in.fld", "Power Ambient\n9 0.25\n9 0\n9 0.5\n");
+    let o = stripe3d(&["fuzzy", "eval", &engine, "--inputs", &inputs]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(
+        out,
+        "Ambient Power\n0.250000000 0.750000000\n0.000000000 nan\n0.500000000 0.500000000\n"
+    );
+
+    // Standard input.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stripe3d"))
+        .args(["fuzzy", "eval", &engine])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    use std::io::Write as _;
+    child
+        .stdin
+        .take()
+        .expect("stdin")
+        .write_all(b"Ambient\n0.75\n")
+        .expect("write");
+    let o = child.wait_with_output().expect("wait");
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout),
+        "Ambient Power\n0.750000000 0.250000000\n"
+    );
+
+    // Errors name the file and line.
+    let bad = write(
+        dir.path(),
+        "bad.fll",
+        &DIMMER_FLL.replace("then Power is HIGH", "then Power is HUGE"),
+    );
+    let o = stripe3d(&["fuzzy", "eval", &bad, "--inputs", &inputs]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("bad.fll:17"), "{}", stderr(&o));
+    let missing = write(dir.path(), "missing.fld", "Light\n0.5\n");
+    let o = stripe3d(&["fuzzy", "eval", &engine, "--inputs", &missing]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("Ambient"), "{}", stderr(&o));
+    let ragged = write(dir.path(), "ragged.fld", "Ambient\n0.5\n0.1 0.2\n");
+    let o = stripe3d(&["fuzzy", "eval", &engine, "--inputs", &ragged]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("ragged.fld:3"), "{}", stderr(&o));
+    assert!(
+        o.stdout.is_empty(),
+        "nothing printed for a table that fails"
+    );
+
+    // Export writes FLL that evaluates identically.
+    let o = stripe3d(&["fuzzy", "export", &engine]);
+    assert!(o.status.success());
+    let exported = write(
+        dir.path(),
+        "exported.fll",
+        &String::from_utf8_lossy(&o.stdout),
+    );
+    let o = stripe3d(&["fuzzy", "eval", &exported, "--inputs", &inputs]);
+    assert_eq!(String::from_utf8_lossy(&o.stdout), out);
+}

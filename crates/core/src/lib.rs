@@ -1,7 +1,7 @@
 //! # stripe3d-core
 //!
 //! The algorithms of stripe3d, with no I/O at all: borrowed image views ([`image`]), the sensor geometry and the
-//! conventions every crate shares ([`sensor`]). Later stages (extraction, coding, triangulation, accumulation,
+//! conventions every crate shares ([`sensor`]), and the fuzzy rule bases of the paper ([`rules`]). Later stages (extraction, coding, triangulation, accumulation,
 //! characterization, detection) live here as modules named after the stage.
 //!
 //! Conventions (see `DESIGN.md`): millimetres, seconds, radians; world frame z up from the belt, x along conveyor
@@ -11,6 +11,7 @@
 
 pub mod error;
 pub mod image;
+pub mod rules;
 pub mod sensor;
 
 pub use error::CoreError;

@@ -757,7 +757,10 @@ impl Shape {
                     1.0
                 };
                 let xy: Vec<(f64, f64)> = v.chunks(2).map(|c| (c[0], c[1])).collect();
-                if xy.windows(2).any(|w| w[0].0.partial_cmp(&w[1].0) != Some(std::cmp::Ordering::Less) && w[0].0 != w[1].0) {
+                if xy.windows(2).any(|w| {
+                    w[0].0.partial_cmp(&w[1].0) != Some(std::cmp::Ordering::Less)
+                        && w[0].0 != w[1].0
+                }) {
                     return Err(FuzzyError::syntax(
                         0,
                         "term Discrete: the x values must be in ascending order",

@@ -115,3 +115,56 @@ fn every_example_engine_matches_fuzzylite() {
         failures.join("\n")
     );
 }
+
+fn files_with(dir: &Path, ext: &str, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut entries: Vec<_> = entries.flatten().map(|e| e.path()).collect();
+    entries.sort();
+    for p in entries {
+        if p.is_dir() {
+            files_with(&p, ext, out);
+        } else if p.extension().is_some_and(|e| e == ext) {
+            out.push(p);
+        }
+    }
+}
+
+#[test]
+fn every_example_fll_round_trips_exactly() {
+    let Some(root) = examples() else {
+        eprintln!("SKIPPED: ../shared/fuzzylite-examples not found beside the checkout");
+        return;
+    };
+    let mut files = Vec::new();
+    files_with(&root, "fll", &mut files);
+    assert!(files.len() >= 32);
+    for f in &files {
+        let engine = match fll::read(&std::fs::read_to_string(f).expect("read")) {
+            Ok(e) => e,
+            Err(e) => panic!("{}: {e}", f.display()),
+        };
+        let text = fll::write(&engine);
+        let again = fll::read(&text)
+            .unwrap_or_else(|e| panic!("{}: written FLL does not read back: {e}", f.display()));
+        assert!(
+            again == engine,
+            "{}: engine changed in the round trip",
+            f.display()
+        );
+        assert_eq!(
+            fll::write(&again),
+            text,
+            "{}: FLL text changed in the round trip",
+            f.display()
+        );
+    }
+    let mut fcls = Vec::new();
+    files_with(&root, "fcl", &mut fcls);
+    for f in &fcls {
+        if let Err(e) = fcl::read(&std::fs::read_to_string(f).expect("read")) {
+            panic!("{}: {e}", f.display());
+        }
+    }
+}
