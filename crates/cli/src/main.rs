@@ -1,5 +1,7 @@
 //! The `stripe3d` command: thin wiring of the library crates. See `stripe3d --help`.
 
+mod bench;
+mod extract;
 mod fuzzy;
 mod simulate;
 
@@ -25,6 +27,11 @@ enum Command {
     },
     /// Render laser-stripe frames of a scene with exact ground truth.
     Simulate(simulate::SimulateArgs),
+    /// Find the sub-pixel centre of every laser stripe on every scan line of camera frames.
+    Extract(extract::ExtractArgs),
+    /// Measure accuracy (against the simulator's ground truth) and speed.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
     /// Fuzzy engines (FLL, FCL): evaluate, convert.
     #[command(subcommand)]
     Fuzzy(fuzzy::FuzzyCommand),
@@ -36,6 +43,8 @@ fn main() -> std::process::ExitCode {
         Command::Demo { out } => simulate::demo(&out),
         Command::Simulate(args) => simulate::simulate(&args).map(|_| ()),
         Command::Fuzzy(cmd) => fuzzy::run(&cmd),
+        Command::Extract(args) => extract::extract(&args),
+        Command::Bench(cmd) => bench::run(&cmd),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

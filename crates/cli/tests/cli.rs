@@ -218,3 +218,105 @@ fn fuzzy_eval_follows_its_contract() {
     let o = stripe3d(&["fuzzy", "eval", &exported, "--inputs", &inputs]);
     assert_eq!(String::from_utf8_lossy(&o.stdout), out);
 }
+
+#[test]
+fn extract_follows_its_contract_and_refuses_bad_images() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let sim = dir.path().join("sim");
+    let o = stripe3d(&[
+        "simulate",
+        "--scene",
+        "plate",
+        "--frames",
+        "2",
+        "--out",
+        sim.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let f0 = sim.join("frames/frame_00000.png");
+    let f1 = sim.join("frames/frame_00001.png");
+    let (f0, f1) = (f0.to_str().expect("utf8"), f1.to_str().expect("utf8"));
+
+    let o = stripe3d(&["extract", f0, "--method", "blais-rioux8"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = String::from_utf8_lossy(&o.stdout).into_owned();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("row,x,intensity,width,score"));
+    let rows: Vec<(u32, f64)> = lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), 5, "{l}");
+            (f[0].parse().expect("row"), f[1].parse().expect("x"))
+        })
+        .collect();
+    assert!(
+        rows.len() > 480 * 10,
+        "11 stripes on most rows: {}",
+        rows.len()
+    );
+    assert!(
+        rows.windows(2)
+            .all(|w| w[0].0 < w[1].0 || (w[0].0 == w[1].0 && w[0].1 < w[1].1)),
+        "sorted by row then x"
+    );
+
+    let o = stripe3d(&["extract", f0, f1, "--format", "csv"]);
+    let csv = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(csv.starts_with("frame,row,x,intensity,width,score\n0,"));
+    assert!(csv.contains("\n1,"));
+
+    let o = stripe3d(&[
+        "extract",
+        f0,
+        "--format",
+        "json",
+        "--axis",
+        "rows",
+        "--threshold",
+        "20",
+        "--method",
+        "fuzzy",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let p = &v["frames"][0]["points"][0];
+    for key in ["row", "x", "intensity", "width", "score"] {
+        assert!(p.get(key).is_some(), "{key} in {p}");
+    }
+    assert!(v["frames"][0]["empty_lines"].is_array());
+
+    // Bad input: a clear message naming the file, non-zero exit, nothing on stdout.
+    let junk = write(dir.path(), "junk.png", "not an image");
+    let empty = write(dir.path(), "empty.pgm", "");
+    for (file, says) in [
+        (junk.as_str(), "junk.png"),
+        (empty.as_str(), "empty.pgm"),
+        ("/no/such/frame.png", "frame.png"),
+    ] {
+        let o = stripe3d(&["extract", f0, file]);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+        assert!(o.stdout.is_empty());
+    }
+    let o = stripe3d(&["extract", f0, "--max-pixels", "1000"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("max-pixels"), "{}", stderr(&o));
+    let o = stripe3d(&["extract", f0, "--method", "magic"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("gaussian"),
+        "lists the methods: {}",
+        stderr(&o)
+    );
+    let o = stripe3d(&["extract", f0, "--threshold", "-3"]);
+    assert!(!o.status.success());
+    // A frame without stripes gives the header only.
+    let dark = dir.path().join("dark.pgm");
+    std::fs::write(&dark, [b"P5\n8 4\n255\n".as_slice(), &[7u8; 32]].concat()).expect("write");
+    let o = stripe3d(&["extract", dark.to_str().expect("utf8")]);
+    assert!(o.status.success());
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout),
+        "row,x,intensity,width,score\n"
+    );
+}

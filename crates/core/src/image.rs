@@ -6,7 +6,7 @@
 use crate::CoreError;
 
 /// A grey-level pixel type: 8- or 16-bit unsigned.
-pub trait Pixel: Copy + Default + PartialOrd + Send + Sync + std::fmt::Debug + 'static {
+pub trait Pixel: Copy + Default + Ord + Send + Sync + std::fmt::Debug + 'static {
     /// The largest representable value.
     const MAX_VALUE: u16;
     /// The value as `f32`.

@@ -1,6 +1,7 @@
 //! # stripe3d-core
 //!
-//! The algorithms of stripe3d, with no I/O at all: borrowed image views ([`image`]), the sensor geometry and the
+//! The algorithms of stripe3d, with no I/O at all: borrowed image views ([`image`]), stripe extraction
+//! ([`extract`]), the sensor geometry and the
 //! conventions every crate shares ([`sensor`]), and the fuzzy rule bases of the paper ([`rules`]). Later stages (extraction, coding, triangulation, accumulation,
 //! characterization, detection) live here as modules named after the stage.
 //!
@@ -10,6 +11,7 @@
 #![deny(missing_docs)]
 
 pub mod error;
+pub mod extract;
 pub mod image;
 pub mod rules;
 pub mod sensor;

@@ -97,6 +97,25 @@ pub fn height_preview(width: usize, height: usize, z: &[f32], lo: f64, hi: f64) 
     rgb
 }
 
+/// A frame read from disk, in its own bit depth.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FrameData {
+    /// 8-bit grey.
+    U8(Image<u8>),
+    /// 16-bit grey.
+    U16(Image<u16>),
+}
+
+impl FrameData {
+    /// Width and height.
+    pub fn size(&self) -> (usize, usize) {
+        match self {
+            FrameData::U8(i) => (i.width(), i.height()),
+            FrameData::U16(i) => (i.width(), i.height()),
+        }
+    }
+}
+
 /// A frame read from disk: pixels widened to 16 bits and the bit depth of the file.
 #[derive(Debug, Clone)]
 pub struct LoadedFrame {
@@ -104,6 +123,29 @@ pub struct LoadedFrame {
     pub image: Image<u16>,
     /// 8 or 16.
     pub bits: u8,
+}
+
+/// Reads a grey frame keeping its bit depth (8-bit frames stay 8-bit, which extraction scans fastest).
+pub fn read_frame_native(path: &Path, max_pixels: usize) -> Result<FrameData, IoError> {
+    let f = read_frame(path)?;
+    let (w, h) = (f.image.width(), f.image.height());
+    if w.saturating_mul(h) > max_pixels {
+        return Err(IoError::Image {
+            path: path.to_path_buf(),
+            message: format!(
+                "{w}x{h} pixels is more than the limit of {max_pixels}; raise it with --max-pixels"
+            ),
+        });
+    }
+    Ok(if f.bits == 8 {
+        let data: Vec<u8> = f.image.data().iter().map(|&v| v as u8).collect();
+        FrameData::U8(Image::from_vec(w, h, data).map_err(|e| IoError::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?)
+    } else {
+        FrameData::U16(f.image)
+    })
 }
 
 /// Reads a grey frame (PNG 8/16-bit, PGM, TIFF). Colour images are refused: a stripe camera is monochrome and a

@@ -13,6 +13,7 @@
 //!   each sheet's centre plane.
 #![deny(missing_docs)]
 
+pub mod evaluate;
 pub mod heightfield;
 pub mod render;
 pub mod scene;

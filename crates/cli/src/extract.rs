@@ -1,0 +1,187 @@
+//! `stripe3d extract`: stripe centres of camera frames, as CSV or JSON.
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+use rayon::prelude::*;
+use std::io::Write;
+use std::path::PathBuf;
+use stripe3d_core::extract::{
+    Axis, ExtractParams, Extraction, Extractor, Method, Policy, Threshold,
+};
+use stripe3d_io::images::{FrameData, read_frame_native};
+
+/// Scan line direction.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum AxisArg {
+    /// Along image rows (stripes roughly vertical).
+    Rows,
+    /// Along image columns (stripes roughly horizontal).
+    Columns,
+}
+
+/// Output format.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum FormatArg {
+    /// `row,x,intensity,width,score` (with a leading `frame` column for several images).
+    Csv,
+    /// The same fields as JSON, with the scan lines where no stripe was found.
+    Json,
+}
+
+/// Multi-peak policy.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum PolicyArg {
+    /// Every stripe on the scan line.
+    All,
+    /// The brightest.
+    Brightest,
+    /// The first along the scan line.
+    First,
+    /// The last along the scan line.
+    Last,
+    /// The one nearest to the previous scan line's.
+    Continuity,
+}
+
+pub fn method_names() -> Vec<&'static str> {
+    Method::ALL.iter().map(|m| m.name()).collect()
+}
+
+/// Arguments of `stripe3d extract`.
+#[derive(Debug, Args)]
+pub struct ExtractArgs {
+    /// Grey images: PNG (8 or 16 bit), PGM or TIFF. Colour images are refused (convert them to grey first).
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+    /// Sub-pixel estimator.
+    #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+    pub method: String,
+    /// Peak prominence threshold in grey levels [default: from the frame's noise, see README].
+    #[arg(long)]
+    pub threshold: Option<f64>,
+    /// Scan line direction; with `columns`, `row` is the column and `x` the sub-pixel row.
+    #[arg(long, value_enum, default_value = "rows")]
+    pub axis: AxisArg,
+    /// Output format.
+    #[arg(long, value_enum, default_value = "csv")]
+    pub format: FormatArg,
+    /// Which stripes to keep when a scan line has several.
+    #[arg(long, value_enum, default_value = "all")]
+    pub policy: PolicyArg,
+    /// Largest image accepted, pixels.
+    #[arg(long, default_value_t = 64 * 1024 * 1024)]
+    pub max_pixels: usize,
+}
+
+/// Builds extraction parameters from the command line.
+pub fn params(
+    method: &str,
+    threshold: Option<f64>,
+    axis: AxisArg,
+    policy: PolicyArg,
+) -> Result<ExtractParams> {
+    let method = Method::from_name(method).with_context(|| {
+        format!(
+            "--method {method}: unknown; use one of {}",
+            method_names().join(", ")
+        )
+    })?;
+    let threshold = match threshold {
+        None => Threshold::Auto,
+        Some(t) if t.is_finite() && t >= 0.0 => Threshold::Fixed(t),
+        Some(t) => bail!("--threshold {t}: give a number of grey levels, 0 or more"),
+    };
+    Ok(ExtractParams {
+        method,
+        threshold,
+        axis: match axis {
+            AxisArg::Rows => Axis::Rows,
+            AxisArg::Columns => Axis::Columns,
+        },
+        policy: match policy {
+            PolicyArg::All => Policy::All,
+            PolicyArg::Brightest => Policy::Brightest,
+            PolicyArg::First => Policy::First,
+            PolicyArg::Last => Policy::Last,
+            PolicyArg::Continuity => Policy::Continuity,
+        },
+        ..ExtractParams::default()
+    })
+}
+
+/// Runs the extractor on a decoded frame.
+pub fn run_frame(ex: &mut Extractor, frame: &FrameData, out: &mut Extraction) {
+    match frame {
+        FrameData::U8(img) => ex.extract_into(img.view(), out),
+        FrameData::U16(img) => ex.extract_into(img.view(), out),
+    }
+}
+
+/// Runs `stripe3d extract`.
+pub fn extract(args: &ExtractArgs) -> Result<()> {
+    let params = params(&args.method, args.threshold, args.axis, args.policy)?;
+    Extractor::new(params.clone())?;
+    // Decode and extract every frame before printing anything, so a bad file leaves no partial output.
+    let results: Vec<Result<Extraction>> = args
+        .images
+        .par_iter()
+        .map_init(
+            || Extractor::new(params.clone()),
+            |ex, path| {
+                let frame = read_frame_native(path, args.max_pixels)?;
+                let ex = ex.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
+                let mut out = Extraction::default();
+                run_frame(ex, &frame, &mut out);
+                Ok(out)
+            },
+        )
+        .collect();
+    let frames: Vec<Extraction> = results.into_iter().collect::<Result<_>>()?;
+    let stdout = std::io::stdout();
+    let mut w = std::io::BufWriter::new(stdout.lock());
+    let several = frames.len() > 1;
+    match args.format {
+        FormatArg::Csv => {
+            writeln!(
+                w,
+                "{}row,x,intensity,width,score",
+                if several { "frame," } else { "" }
+            )?;
+            for (f, ex) in frames.iter().enumerate() {
+                for p in &ex.points {
+                    if several {
+                        write!(w, "{f},")?;
+                    }
+                    writeln!(
+                        w,
+                        "{},{:.5},{},{},{:.4}",
+                        p.row, p.x, p.intensity, p.width, p.score
+                    )?;
+                }
+            }
+        }
+        FormatArg::Json => {
+            let list: Vec<_> = frames
+                .iter()
+                .enumerate()
+                .map(|(f, ex)| {
+                    serde_json::json!({
+                        "frame": f,
+                        "file": args.images[f].display().to_string(),
+                        "threshold": ex.threshold,
+                        "lines": ex.lines,
+                        "points": ex.points,
+                        "empty_lines": ex.empty_lines(),
+                    })
+                })
+                .collect();
+            serde_json::to_writer_pretty(
+                &mut w,
+                &serde_json::json!({ "method": args.method, "frames": list }),
+            )?;
+            writeln!(w)?;
+        }
+    }
+    w.flush()?;
+    Ok(())
+}

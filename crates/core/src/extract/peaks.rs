@@ -1,0 +1,312 @@
+//! Dominant peak locating (Wu, Lee & de Silva, section 4.1, eq. 4-6).
+//!
+//! A *peak* is a pixel after a rise (or flat) and before a fall; a *valley* a pixel after a fall and before a rise
+//! (or flat). A peak is *dominant* when it stands more than the threshold above a valley on each side (eq. 4), the
+//! highest such peak between two valleys representing the stripe. Its region of interest runs from the nearest
+//! valley on the left to the nearest valley on the right that are each more than the threshold below it (eq. 5-6).
+//!
+//! Implementation: one pass with hysteresis finds the dominant peaks exactly as eq. 4 defines them (the running
+//! maximum is a dominant peak once the signal falls more than the threshold below it, having risen more than the
+//! threshold above the running minimum before it). Background stretches are skipped a block at a time: a block
+//! whose values stay within the threshold of the tracked extreme cannot change the state, and its extremes are
+//! found with vectorisable min/max reductions. A flat top (saturation) is one peak whose plateau is recorded.
+
+use crate::image::Pixel;
+
+/// Pixels per block of the background skip.
+const BLOCK: usize = 16;
+
+/// One dominant peak on a scan line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Peak {
+    /// First pixel of the peak's flat top.
+    pub top_start: usize,
+    /// Last pixel of the peak's flat top (equal to `top_start` without a plateau).
+    pub top_end: usize,
+    /// Peak value.
+    pub value: u32,
+    /// Left bound of the region of interest (a valley, eq. 6).
+    pub roi_left: usize,
+    /// Right bound of the region of interest (a valley, eq. 5).
+    pub roi_right: usize,
+}
+
+impl Peak {
+    /// The integer peak position: the middle of the flat top.
+    pub fn center(&self) -> usize {
+        (self.top_start + self.top_end) / 2
+    }
+
+    /// True when the top is a plateau of two or more equal pixels.
+    pub fn is_plateau(&self) -> bool {
+        self.top_end > self.top_start
+    }
+}
+
+#[inline]
+fn v<T: Pixel>(line: &[T], i: usize) -> u32 {
+    line[i].to_u32()
+}
+
+/// Finds the dominant peaks of `line` whose prominence exceeds `threshold` and appends them to `out` (cleared
+/// first), left to right.
+pub fn dominant_peaks<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>) {
+    dominant_peaks_impl(line, threshold, out, true);
+}
+
+fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>, skip: bool) {
+    out.clear();
+    let n = line.len();
+    if n < 3 {
+        return;
+    }
+    // Mode: looking for a rise (min tracked) or for a fall (max tracked).
+    let mut rising = false;
+    let (mut mn, mut mx) = (v(line, 0), 0u32);
+    let (mut top_start, mut top_end) = (0usize, 0usize);
+    let mut i = 0;
+    while i < n {
+        // Skip a whole block when it cannot change the state.
+        if skip && i + BLOCK <= n {
+            let block = &line[i..i + BLOCK];
+            // Separate reductions on the pixel type vectorise (one instruction per 16 or 32 pixels).
+            let (mut bmin, mut bmax) = (u32::MAX, 0u32);
+            for p in block {
+                bmin = bmin.min(p.to_u32());
+            }
+            for p in block {
+                bmax = bmax.max(p.to_u32());
+            }
+            // Falling: a rise needs some value more than the threshold above the running minimum, which is never
+            // below min(mn, bmin). Rising: a fall needs a value more than the threshold below the running maximum;
+            // a new maximum needs its position, so such blocks take the per-pixel path.
+            let quiet = if rising {
+                bmax <= mx && bmin.saturating_add(threshold) >= mx
+            } else {
+                bmax <= mn.min(bmin).saturating_add(threshold)
+            };
+            if quiet {
+                if !rising {
+                    mn = mn.min(bmin);
+                }
+                if rising && bmax == mx && top_end + 1 == i {
+                    // The flat top continues into the block: extend it as far as it goes.
+                    let mut j = i;
+                    while j < i + BLOCK && v(line, j) == mx {
+                        top_end = j;
+                        j += 1;
+                    }
+                }
+                i += BLOCK;
+                continue;
+            }
+        }
+        // Not quiet (or too near the end): run the state machine pixel by pixel over the whole block.
+        let end = if skip { (i + BLOCK).min(n) } else { i + 1 };
+        while i < end {
+            let x = v(line, i);
+            if rising {
+                if x > mx {
+                    mx = x;
+                    top_start = i;
+                    top_end = i;
+                } else if x == mx && top_end + 1 == i {
+                    top_end = i;
+                } else if x + threshold < mx {
+                    out.push(Peak {
+                        top_start,
+                        top_end,
+                        value: mx,
+                        roi_left: 0,
+                        roi_right: 0,
+                    });
+                    rising = false;
+                    mn = x;
+                }
+            } else if x < mn {
+                mn = x;
+            } else if x > mn.saturating_add(threshold) {
+                rising = true;
+                mx = x;
+                top_start = i;
+                top_end = i;
+            }
+            i += 1;
+        }
+    }
+    // Regions of interest: the nearest valleys more than the threshold below each peak (eq. 5-6).
+    for k in 0..out.len() {
+        let p = out[k];
+        let limit = p.value.saturating_sub(threshold);
+        let left_stop = if k > 0 { out[k - 1].top_end } else { 0 };
+        let right_stop = if k + 1 < out.len() {
+            out[k + 1].top_start
+        } else {
+            n - 1
+        };
+        out[k].roi_left = nearest_valley_left(line, p.top_start, left_stop, limit);
+        out[k].roi_right = nearest_valley_right(line, p.top_end, right_stop, limit);
+    }
+}
+
+/// Nearest valley left of `from` (down to `stop`) whose value is below `limit`; `stop` when none is.
+fn nearest_valley_left<T: Pixel>(line: &[T], from: usize, stop: usize, limit: u32) -> usize {
+    let mut i = from;
+    while i > stop {
+        i -= 1;
+        let x = v(line, i);
+        if x < limit {
+            // A valley: a fall into i, then a rise or flat out of it (towards the peak).
+            let fell = i == 0 || v(line, i - 1) > x;
+            let rises = v(line, i + 1) >= x;
+            if (fell && rises) || i == stop {
+                return i;
+            }
+        }
+    }
+    stop
+}
+
+/// Nearest valley right of `from` (up to `stop`) whose value is below `limit`; `stop` when none is.
+fn nearest_valley_right<T: Pixel>(line: &[T], from: usize, stop: usize, limit: u32) -> usize {
+    let n = line.len();
+    let mut i = from;
+    while i < stop {
+        i += 1;
+        let x = v(line, i);
+        if x < limit {
+            let fell = v(line, i - 1) > x;
+            let rises = i + 1 >= n || v(line, i + 1) >= x;
+            if (fell && rises) || i == stop {
+                return i;
+            }
+        }
+    }
+    stop
+}
+
+/// Noise of a scan line in grey levels, from the median absolute first difference (robust to the stripes:
+/// sigma = 1.4826 * median|f(i+1) - f(i)| / sqrt(2)). Uses a histogram, so it costs one pass.
+pub fn line_noise<T: Pixel>(line: &[T], hist: &mut Vec<u32>) -> f64 {
+    if line.len() < 2 {
+        return 0.0;
+    }
+    let max_bin = 1024usize;
+    hist.clear();
+    hist.resize(max_bin + 1, 0);
+    for w in line.windows(2) {
+        let d = w[0].to_u32().abs_diff(w[1].to_u32()) as usize;
+        hist[d.min(max_bin)] += 1;
+    }
+    let half = (line.len() - 1).div_ceil(2) as u32;
+    let mut acc = 0;
+    for (d, &c) in hist.iter().enumerate() {
+        acc += c;
+        if acc >= half {
+            return 1.4826 * d as f64 / std::f64::consts::SQRT_2;
+        }
+    }
+    0.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn peaks(line: &[u8], t: u32) -> Vec<Peak> {
+        let mut out = Vec::new();
+        dominant_peaks(line, t, &mut out);
+        out
+    }
+
+    #[test]
+    fn the_papers_figure_4_kind_of_line() {
+        // Two stripes, one with a small noise bump on its flank that must not become a peak.
+        let line = [
+            5, 6, 5, 20, 60, 100, 90, 95, 40, 10, 6, 5, 7, 5, 30, 80, 30, 6, 5, 5,
+        ];
+        let p = peaks(&line, 20);
+        assert_eq!(p.len(), 2);
+        assert_eq!((p[0].top_start, p[0].value), (5, 100));
+        assert_eq!((p[1].top_start, p[1].value), (15, 80));
+        // ROI: nearest valleys more than 20 below the peak
+        assert_eq!((p[0].roi_left, p[0].roi_right), (2, 11));
+        assert_eq!((p[1].roi_left, p[1].roi_right), (13, 18));
+    }
+
+    #[test]
+    fn plateaus_become_one_peak_and_small_bumps_none() {
+        let mut line = vec![3u8; 100];
+        for x in &mut line[40..47] {
+            *x = 255;
+        }
+        line[39] = 120;
+        line[47] = 120;
+        line[70] = 12; // below threshold
+        let p = peaks(&line, 20);
+        assert_eq!(p.len(), 1);
+        assert_eq!((p[0].top_start, p[0].top_end, p[0].center()), (40, 46, 43));
+        assert!(p[0].is_plateau());
+        assert!(peaks(&[0u8; 10], 1).is_empty());
+        assert!(peaks(&[255u8; 100], 1).is_empty(), "all saturated: no peak");
+        assert!(peaks(&[1u8, 200], 1).is_empty());
+    }
+
+    #[test]
+    fn block_skipping_changes_nothing() {
+        let mut rng = 12345u32;
+        let mut next = || {
+            rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            rng >> 8
+        };
+        for case in 0..500 {
+            let mut line = vec![0u16; 300];
+            for x in line.iter_mut() {
+                *x = (next() % 12) as u16;
+            }
+            for _ in 0..(case % 7) {
+                let c = (next() % 300) as usize;
+                let a = 20 + (next() % 200) as u16;
+                let w = 1 + (next() % 6) as usize;
+                for d in 0..w {
+                    if c + d < line.len() {
+                        line[c + d] = line[c + d].max(a - (a / 8) * d as u16);
+                    }
+                }
+            }
+            let (mut fast, mut slow) = (Vec::new(), Vec::new());
+            dominant_peaks_impl(&line, 15, &mut fast, true);
+            dominant_peaks_impl(&line, 15, &mut slow, false);
+            assert_eq!(fast, slow, "case {case}");
+            for p in &fast {
+                assert!(u32::from(line[p.roi_left]) + 15 < p.value || p.roi_left == 0);
+                assert!(
+                    u32::from(line[p.roi_right]) + 15 < p.value || p.roi_right == line.len() - 1
+                );
+                assert!(p.roi_left <= p.top_start && p.top_end <= p.roi_right);
+                assert!(
+                    line[p.top_start..=p.top_end]
+                        .iter()
+                        .all(|&x| u32::from(x) == p.value)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn noise_estimate_is_robust_to_stripes() {
+        let mut hist = Vec::new();
+        let flat = vec![10u8; 648];
+        assert_eq!(line_noise(&flat, &mut hist), 0.0);
+        let mut line = vec![0u8; 648];
+        for (i, x) in line.iter_mut().enumerate() {
+            *x = if i % 2 == 0 { 10 } else { 12 };
+        }
+        line[300..305].copy_from_slice(&[100, 200, 250, 200, 100]);
+        let s = line_noise(&line, &mut hist);
+        assert!(
+            (s - 1.4826 * 2.0 / std::f64::consts::SQRT_2).abs() < 1e-9,
+            "{s}"
+        );
+    }
+}

@@ -1,0 +1,284 @@
+//! Steger's unbiased line detector (C. Steger, IEEE PAMI 20(2), 1998), 1-D along the scan line and full 2-D.
+//!
+//! Derivatives come from pixel-integrated Gaussian-derivative kernels at scale `s`: the response of pixel `j` to
+//! the n-th derivative at `x` is the integral over the pixel of G⁽ⁿ⁾(x − u), i.e. a difference of G⁽ⁿ⁻¹⁾ at the
+//! pixel's edges, so the kernels are exact for a piecewise-constant image. The scale follows the stripe's width:
+//! `s = max(MIN_SCALE, w / √3)` for a stripe of half-width `w` (Steger's condition for a bar profile), rounded to
+//! [`SCALE_STEP`] so kernels are computed once per scale.
+
+/// Smallest scale used, pixels.
+pub const MIN_SCALE: f64 = 0.8;
+/// Scales are rounded to multiples of this, pixels.
+pub const SCALE_STEP: f64 = 0.1;
+/// Largest scale used, pixels.
+pub const MAX_SCALE: f64 = 8.0;
+
+/// Sub-pixel positions per pixel at which 1-D derivative kernels are tabulated.
+pub const SUBPIXEL_STEPS: usize = 64;
+
+/// Pixel-integrated kernels at one scale: smoothing, first and second derivative, for offsets −r..=r; and the
+/// first and second derivative kernels for evaluation points between pixel centres (1/[`SUBPIXEL_STEPS`] apart).
+#[derive(Debug, Clone)]
+pub struct Kernels {
+    /// Radius in pixels.
+    pub radius: usize,
+    /// Smoothing (sums to 1).
+    pub d0: Vec<f64>,
+    /// First derivative.
+    pub d1: Vec<f64>,
+    /// Second derivative.
+    pub d2: Vec<f64>,
+    /// For sub-pixel offset o = i/SUBPIXEL_STEPS − 0.5, the first and second derivative kernels at x + o.
+    shifted: Vec<(Vec<f64>, Vec<f64>)>,
+}
+
+fn gauss(u: f64, s: f64) -> f64 {
+    (-0.5 * (u / s).powi(2)).exp() / (s * (2.0 * std::f64::consts::PI).sqrt())
+}
+
+impl Kernels {
+    /// Kernels at scale `s`: entry k (offset k − r) is the weight of pixel x − (k − r) for the derivative at x.
+    pub fn new(s: f64) -> Self {
+        let radius = (3.5 * s).ceil() as usize + 1;
+        let mut d0 = Vec::with_capacity(2 * radius + 1);
+        let mut d1 = Vec::with_capacity(2 * radius + 1);
+        let mut d2 = Vec::with_capacity(2 * radius + 1);
+        let g1 = |u: f64| -u / (s * s) * gauss(u, s);
+        for k in -(radius as isize)..=radius as isize {
+            let u = k as f64;
+            d0.push(gauss(u, s));
+            d1.push(gauss(u + 0.5, s) - gauss(u - 0.5, s));
+            d2.push(g1(u + 0.5) - g1(u - 0.5));
+        }
+        let sum: f64 = d0.iter().sum();
+        d0.iter_mut().for_each(|w| *w /= sum);
+        // Truncation leaves the second-derivative kernel a small non-zero sum; a flat signal must give zero.
+        let zero_sum = |d: &mut Vec<f64>| {
+            let mean = d.iter().sum::<f64>() / d.len() as f64;
+            d.iter_mut().for_each(|w| *w -= mean);
+        };
+        zero_sum(&mut d2);
+        let shifted = (0..=SUBPIXEL_STEPS)
+            .map(|i| {
+                let o = i as f64 / SUBPIXEL_STEPS as f64 - 0.5;
+                let mut a = Vec::with_capacity(2 * radius + 1);
+                let mut b = Vec::with_capacity(2 * radius + 1);
+                for k in -(radius as isize)..=radius as isize {
+                    let u = k as f64 + o;
+                    a.push(gauss(u + 0.5, s) - gauss(u - 0.5, s));
+                    b.push(g1(u + 0.5) - g1(u - 0.5));
+                }
+                zero_sum(&mut a);
+                zero_sum(&mut b);
+                (a, b)
+            })
+            .collect();
+        Self {
+            radius,
+            d0,
+            d1,
+            d2,
+            shifted,
+        }
+    }
+
+    /// First and second derivative of the smoothed line at `x` (any real position).
+    fn derivatives(&self, f: &impl Fn(isize) -> f64, x: f64) -> (f64, f64, f64) {
+        let xi = x.round();
+        let step = ((x - xi + 0.5) * SUBPIXEL_STEPS as f64)
+            .round()
+            .clamp(0.0, SUBPIXEL_STEPS as f64) as usize;
+        let (a, b) = &self.shifted[step];
+        let r = self.radius as isize;
+        let (mut r1, mut r2, mut mag) = (0.0, 0.0, 0.0);
+        for j in -r..=r {
+            let v = f(xi as isize - j);
+            let idx = (j + r) as usize;
+            r1 += v * a[idx];
+            r2 += v * b[idx];
+            mag += (v * b[idx]).abs();
+        }
+        let at = xi + step as f64 / SUBPIXEL_STEPS as f64 - 0.5;
+        // A bright line has a clearly negative second derivative (not rounding noise on a flat line): NaN else.
+        let r2 = if r2 < -1e-9 * mag.max(1e-300) {
+            r2
+        } else {
+            f64::NAN
+        };
+        (r1, r2, at)
+    }
+}
+
+/// A cache of kernels by rounded scale.
+#[derive(Debug, Clone, Default)]
+pub struct KernelCache {
+    by_step: Vec<Option<Kernels>>,
+}
+
+impl KernelCache {
+    /// The kernels for scale `s` (rounded to [`SCALE_STEP`], clamped to [`MIN_SCALE`]..[`MAX_SCALE`]).
+    pub fn get(&mut self, s: f64) -> &Kernels {
+        let s = if s.is_finite() {
+            s.clamp(MIN_SCALE, MAX_SCALE)
+        } else {
+            MIN_SCALE
+        };
+        let step = (s / SCALE_STEP).round() as usize;
+        if self.by_step.len() <= step {
+            self.by_step.resize(step + 1, None);
+        }
+        self.by_step[step].get_or_insert_with(|| Kernels::new(step as f64 * SCALE_STEP))
+    }
+}
+
+/// Scale for a stripe whose intensity-weighted standard deviation across the line is `sigma` pixels: a bar of
+/// half-width w has sigma = w/sqrt(3), so Steger's condition s >= w/sqrt(3) asks for s >= sigma; the stripe's own
+/// sigma also suppresses noise best without merging neighbours.
+pub fn scale_for_width(sigma: f64) -> f64 {
+    if sigma.is_finite() {
+        sigma.clamp(MIN_SCALE, MAX_SCALE)
+    } else {
+        MIN_SCALE
+    }
+}
+
+/// 1-D Steger at integer position `x0` of a line accessed by `f(i)` (clamped at the ends): the sub-pixel position
+/// where the smoothed first derivative vanishes, or `None` when the line is not bright there.
+pub fn steger_1d(f: impl Fn(isize) -> f64, x0: isize, k: &Kernels) -> Option<f64> {
+    // Newton's method on the smoothed first derivative, evaluated at sub-pixel positions with tabulated kernels,
+    // so the result is the zero of the derivative itself (Steger's Taylor step at the pixel centre alone leaves a
+    // bias of up to delta^3 / sigma^2).
+    let mut x = x0 as f64;
+    for _ in 0..6 {
+        let (r1, r2, at) = k.derivatives(&f, x);
+        if !r2.is_finite() {
+            return None;
+        }
+        let t = -r1 / r2;
+        if !t.is_finite() || t.abs() > 3.0 {
+            return None;
+        }
+        x = at + t;
+        if t.abs() < 0.5 / SUBPIXEL_STEPS as f64 {
+            return ((x - x0 as f64).abs() <= 1.5).then_some(x);
+        }
+    }
+    ((x - x0 as f64).abs() <= 1.5).then_some(x)
+}
+
+/// 2-D Steger near pixel (`u0`, `v0`) of an image accessed by `f(u, v)` (u along the scan line, v across lines):
+/// returns the sub-pixel u where the detected line crosses scan line `v0`.
+pub fn steger_2d(
+    f: impl Fn(isize, isize) -> f64,
+    u0: isize,
+    v0: isize,
+    k: &Kernels,
+) -> Option<f64> {
+    let r = k.radius as isize;
+    let (mut u, mut v) = (u0, v0);
+    let mut visited = [(isize::MIN, isize::MIN); 4];
+    for it in 0..4 {
+        visited[it] = (u, v);
+        let (mut ru, mut rv, mut ruu, mut ruv, mut rvv) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for jv in -r..=r {
+            let (w0v, w1v, w2v) = (
+                k.d0[(jv + r) as usize],
+                k.d1[(jv + r) as usize],
+                k.d2[(jv + r) as usize],
+            );
+            for ju in -r..=r {
+                let val = f(u - ju, v - jv);
+                let (w0u, w1u, w2u) = (
+                    k.d0[(ju + r) as usize],
+                    k.d1[(ju + r) as usize],
+                    k.d2[(ju + r) as usize],
+                );
+                ru += val * w1u * w0v;
+                rv += val * w0u * w1v;
+                ruu += val * w2u * w0v;
+                ruv += val * w1u * w1v;
+                rvv += val * w0u * w2v;
+            }
+        }
+        // Eigenvector of the Hessian for the eigenvalue of largest magnitude.
+        let tr = ruu + rvv;
+        let det = ruu * rvv - ruv * ruv;
+        let disc = (0.25 * tr * tr - det).max(0.0).sqrt();
+        let (l1, l2) = (0.5 * tr + disc, 0.5 * tr - disc);
+        let lambda = if l1.abs() > l2.abs() { l1 } else { l2 };
+        if lambda >= 0.0 {
+            return None;
+        }
+        let (mut nu, mut nv) = if ruv.abs() > 1e-12 {
+            (ruv, lambda - ruu)
+        } else if ruu.abs() >= rvv.abs() {
+            (1.0, 0.0)
+        } else {
+            (0.0, 1.0)
+        };
+        let norm = (nu * nu + nv * nv).sqrt();
+        nu /= norm;
+        nv /= norm;
+        let t = -(ru * nu + rv * nv) / (ruu * nu * nu + 2.0 * ruv * nu * nv + rvv * nv * nv);
+        if !t.is_finite() {
+            return None;
+        }
+        let (pu, pv) = (t * nu, t * nv);
+        let next = (u + pu.round() as isize, v + pv.round() as isize);
+        // Accept inside the pixel, or when the step would return to a pixel already visited (a line exactly
+        // between two pixels).
+        if (pu.abs() <= 0.5 && pv.abs() <= 0.5)
+            || (pu.abs() <= 1.0 && pv.abs() <= 1.0 && visited.contains(&next))
+        {
+            // The line runs along (−nv, nu); move along it back to scan line v0.
+            let (du, dv) = (-nv, nu);
+            let (px, py) = (u as f64 + pu, v as f64 + pv);
+            return if dv.abs() < 0.2 {
+                Some(px)
+            } else {
+                Some(px + (v0 as f64 - py) * du / dv)
+            };
+        }
+        (u, v) = next;
+        if (v - v0).abs() > 1 {
+            return None;
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kernels_integrate_correctly() {
+        let k = Kernels::new(1.5);
+        assert!((k.d0.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(k.d1.iter().sum::<f64>().abs() < 1e-6);
+        // The first-derivative kernel applied to a ramp gives its slope.
+        let r = k.radius as isize;
+        let slope: f64 = (-r..=r)
+            .map(|j| (-(j as f64)) * k.d1[(j + r) as usize] * 3.0)
+            .sum();
+        assert!((slope - 3.0).abs() < 1e-3, "{slope}");
+    }
+
+    #[test]
+    fn one_and_two_dimensional_steger_find_a_gaussian_line() {
+        let c = 20.3;
+        let s = 1.5;
+        let line = |i: isize| 10.0 + 200.0 * (-0.5 * ((i as f64 - c) / s).powi(2)).exp();
+        let mut cache = KernelCache::default();
+        let k = cache.get(scale_for_width(s)).clone();
+        let x = steger_1d(line, 20, &k).expect("line");
+        assert!((x - c).abs() < 0.02, "{x}");
+        // A slanted line in 2-D: u = c + 0.2 v.
+        let img = |u: isize, v: isize| {
+            10.0 + 200.0 * (-0.5 * ((u as f64 - c - 0.2 * v as f64) / s).powi(2)).exp()
+        };
+        let x2 = steger_2d(img, 22, 10, &k).expect("line");
+        assert!((x2 - (c + 2.0)).abs() < 0.05, "{x2}");
+        assert!(steger_1d(|_| 5.0, 3, &k).is_none(), "flat: no line");
+    }
+}

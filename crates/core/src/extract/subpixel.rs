@@ -1,0 +1,238 @@
+//! Sub-pixel stripe-centre estimators on one scan line (`../shared/reference/estimators.md`).
+//!
+//! Every estimator returns the centre with pixel centres at integer coordinates. Estimators that sum intensities
+//! subtract the local background (the lower of the two bounding valleys). On a flat top (saturation) the
+//! three-point estimators would see three equal values; they use the middle of the half-height crossings of the
+//! plateau's flanks instead, which is unbiased for a symmetric stripe.
+
+use super::peaks::Peak;
+use crate::image::Pixel;
+
+#[inline]
+fn at<T: Pixel>(line: &[T], i: isize) -> f64 {
+    let i = i.clamp(0, line.len() as isize - 1) as usize;
+    f64::from(line[i].to_f32())
+}
+
+/// Local background under a peak: the lower of its two bounding valleys.
+pub fn background<T: Pixel>(line: &[T], p: &Peak) -> f64 {
+    at(line, p.roi_left as isize).min(at(line, p.roi_right as isize))
+}
+
+/// Centre of mass over `lo..=hi` of the intensities above `bg` (eq. 7-10 share this).
+pub fn centre_of_mass<T: Pixel>(line: &[T], lo: usize, hi: usize, bg: f64) -> Option<f64> {
+    let (mut s, mut sx) = (0.0, 0.0);
+    let hi = hi.min(line.len().saturating_sub(1));
+    for (i, p) in line.iter().enumerate().take(hi + 1).skip(lo) {
+        let w = (f64::from(p.to_f32()) - bg).max(0.0);
+        s += w;
+        sx += w * i as f64;
+    }
+    (s > 0.0).then(|| sx / s)
+}
+
+/// Centre of mass of the pixels at least `level` above `bg`, in the contiguous run around the peak (eq. 10 on
+/// one stripe).
+pub fn centre_of_mass_threshold<T: Pixel>(
+    line: &[T],
+    p: &Peak,
+    bg: f64,
+    level: f64,
+) -> Option<f64> {
+    let above = |i: usize| f64::from(line[i].to_f32()) - bg >= level;
+    let mut lo = p.top_start;
+    while lo > p.roi_left && above(lo - 1) {
+        lo -= 1;
+    }
+    let mut hi = p.top_end;
+    while hi < p.roi_right && above(hi + 1) {
+        hi += 1;
+    }
+    centre_of_mass(line, lo, hi, bg)
+}
+
+/// Middle of the two crossings of half height on the flanks of a flat top.
+pub fn plateau_centre<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> f64 {
+    let level = 0.5 * (f64::from(p.value) + bg);
+    let crossing = |from: usize, step: isize, stop: usize| -> f64 {
+        let mut i = from as isize;
+        loop {
+            let next = i + step;
+            if (step < 0 && next < stop as isize) || (step > 0 && next > stop as isize) {
+                return i as f64;
+            }
+            let (vi, vn) = (at(line, i), at(line, next));
+            if vn < level {
+                return i as f64 + step as f64 * (vi - level) / (vi - vn);
+            }
+            i = next;
+        }
+    };
+    0.5 * (crossing(p.top_start, -1, p.roi_left) + crossing(p.top_end, 1, p.roi_right))
+}
+
+/// Lopsidedness of the profile about `centre`: |w_l − w_r| / (w_l + w_r), with w_l and w_r the distances from
+/// the centre to the half-height crossings on either side (0 for a symmetric stripe, 1 for a cliff).
+pub fn asymmetry<T: Pixel>(line: &[T], p: &Peak, bg: f64, centre: f64) -> f64 {
+    let level = 0.5 * (f64::from(p.value) + bg);
+    let crossing = |from: usize, step: isize, stop: usize| -> f64 {
+        let mut i = from as isize;
+        loop {
+            let next = i + step;
+            if (step < 0 && next < stop as isize) || (step > 0 && next > stop as isize) {
+                return i as f64;
+            }
+            let (vi, vn) = (at(line, i), at(line, next));
+            if vn < level {
+                return i as f64 + step as f64 * (vi - level) / (vi - vn);
+            }
+            i = next;
+        }
+    };
+    let wl = centre - crossing(p.top_start, -1, p.roi_left);
+    let wr = crossing(p.top_end, 1, p.roi_right) - centre;
+    if wl + wr > 0.0 {
+        ((wl - wr) / (wl + wr)).abs()
+    } else {
+        0.0
+    }
+}
+
+/// The three values around the peak, background subtracted: a = f(x-1), b = f(x), c = f(x+1).
+fn three<T: Pixel>(line: &[T], x: usize, bg: f64) -> (f64, f64, f64) {
+    let x = x as isize;
+    (at(line, x - 1) - bg, at(line, x) - bg, at(line, x + 1) - bg)
+}
+
+/// Centre of mass of the peak and its two neighbours (eq. 8).
+pub fn com3<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
+    if p.is_plateau() {
+        return Some(plateau_centre(line, p, bg));
+    }
+    let x = p.top_start;
+    centre_of_mass(line, x.saturating_sub(1), x + 1, bg)
+}
+
+/// Linear interpolation (eq. 11, corrected as in `estimators.md`).
+pub fn linear<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
+    if p.is_plateau() {
+        return Some(plateau_centre(line, p, bg));
+    }
+    let (a, b, c) = three(line, p.top_start, bg);
+    let d = if c > a {
+        0.5 * (c - a) / (b - a)
+    } else {
+        0.5 * (c - a) / (b - c)
+    };
+    d.is_finite().then_some(p.top_start as f64 + d)
+}
+
+/// Parabolic fit through three points (eq. 12).
+pub fn parabolic<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
+    if p.is_plateau() {
+        return Some(plateau_centre(line, p, bg));
+    }
+    let (a, b, c) = three(line, p.top_start, bg);
+    let d = 0.5 * (a - c) / (a - 2.0 * b + c);
+    d.is_finite().then_some(p.top_start as f64 + d)
+}
+
+/// Gaussian (parabola through the logarithms), values clamped at half a grey level above the background.
+pub fn gaussian<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
+    if p.is_plateau() {
+        return Some(plateau_centre(line, p, bg));
+    }
+    let (a, b, c) = three(line, p.top_start, bg);
+    let floor = 0.5;
+    let (la, lb, lc) = (a.max(floor).ln(), b.max(floor).ln(), c.max(floor).ln());
+    let d = 0.5 * (la - lc) / (la - 2.0 * lb + lc);
+    (d.is_finite() && d.abs() <= 1.0).then_some(p.top_start as f64 + d)
+}
+
+/// Blais-Rioux detector of order 4 (`half` = 2) or 8 (`half` = 4): zero crossing of
+/// g(i) = sum_k f(i-k) - f(i+k), k = 1..half.
+pub fn blais_rioux<T: Pixel>(line: &[T], p: &Peak, half: isize) -> Option<f64> {
+    let g = |i: isize| -> f64 { (1..=half).map(|k| at(line, i - k) - at(line, i + k)).sum() };
+    let x = p.center() as isize;
+    let (a, c) = (at(line, x - 1), at(line, x + 1));
+    let (g0, gl, gr) = (g(x), g(x - 1), g(x + 1));
+    let est = if c > a {
+        x as f64 + g0 / (g0 - gr)
+    } else if c < a {
+        (x - 1) as f64 + gl / (gl - g0)
+    } else if g0 == 0.0 {
+        x as f64
+    } else if g0 < 0.0 {
+        x as f64 + g0 / (g0 - gr)
+    } else {
+        (x - 1) as f64 + gl / (gl - g0)
+    };
+    (est.is_finite() && (est - x as f64).abs() <= 1.0).then_some(est)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sampled Gaussian stripe of sigma `s` centred at `c` on a background of 10, quantised to u16 at high
+    /// amplitude so quantisation is negligible.
+    fn stripe(c: f64, s: f64) -> Vec<u16> {
+        (0..64)
+            .map(|i| (10.0 + 60000.0 * (-0.5 * ((i as f64 - c) / s).powi(2)).exp()).round() as u16)
+            .collect()
+    }
+
+    fn peak(line: &[u16]) -> Peak {
+        let mut out = Vec::new();
+        super::super::peaks::dominant_peaks(line, 100, &mut out);
+        assert_eq!(out.len(), 1);
+        out[0]
+    }
+
+    #[test]
+    fn the_gaussian_estimator_is_exact_on_gaussians_and_the_others_close() {
+        for &c in &[30.0, 30.13, 30.37, 30.5, 30.81] {
+            for &s in &[1.0, 2.0] {
+                let line = stripe(c, s);
+                let p = peak(&line);
+                let bg = background(&line, &p);
+                let g = gaussian(&line, &p, bg).expect("gaussian");
+                assert!((g - c).abs() < 2e-3, "gaussian {g} vs {c}");
+                let roi = centre_of_mass(&line, p.roi_left, p.roi_right, bg).expect("roi");
+                assert!((roi - c).abs() < 0.01, "com-roi {roi} vs {c}");
+                for (name, est, tol) in [
+                    ("parabolic", parabolic(&line, &p, bg), 0.06),
+                    ("linear", linear(&line, &p, bg), 0.09),
+                    ("br4", blais_rioux(&line, &p, 2), 0.02),
+                    ("br8", blais_rioux(&line, &p, 4), 0.02),
+                    ("com3", com3(&line, &p, bg), 0.43),
+                ] {
+                    let e = est.unwrap_or_else(|| panic!("{name}"));
+                    assert!((e - c).abs() < tol, "{name} {e} vs {c} (sigma {s})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn saturated_plateaus_give_their_centre() {
+        let mut line = stripe(30.3, 2.0);
+        for x in line.iter_mut() {
+            *x = (*x).min(40000);
+        }
+        let p = peak(&line);
+        assert!(p.is_plateau());
+        let bg = background(&line, &p);
+        for est in [
+            gaussian(&line, &p, bg),
+            parabolic(&line, &p, bg),
+            linear(&line, &p, bg),
+            com3(&line, &p, bg),
+        ] {
+            let e = est.expect("estimate");
+            assert!((e - 30.3).abs() < 0.05, "{e}");
+        }
+        let br = blais_rioux(&line, &p, 4).expect("br8");
+        assert!((br - 30.3).abs() < 0.05, "{br}");
+    }
+}

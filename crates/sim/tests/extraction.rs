@@ -1,0 +1,121 @@
+//! Stripe extraction measured against the simulator's exact ground truth (tolerances stated per test).
+
+use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
+use stripe3d_core::{Image, Sensor};
+use stripe3d_sim::evaluate::Score;
+use stripe3d_sim::scene::Plate;
+use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
+
+fn plate(z: f64) -> Scene {
+    let mut s = Scene::flat_plate();
+    s.grid_mm = 0.5;
+    s.plate = Some(Plate {
+        center_x_mm: 0.0,
+        center_y_mm: 0.0,
+        length_mm: 200.0,
+        width_mm: 160.0,
+        thickness_mm: z,
+        chamfer_mm: 0.0,
+        albedo: 0.6,
+    });
+    s
+}
+
+fn score(frames: &[Frame], bits: u8, method: Method) -> Score {
+    let mut ex = Extractor::new(ExtractParams {
+        method,
+        ..ExtractParams::default()
+    })
+    .expect("extractor");
+    let mut out = Extraction::default();
+    let mut s = Score::default();
+    for f in frames {
+        if bits <= 8 {
+            let data: Vec<u8> = f.image.data().iter().map(|&v| v as u8).collect();
+            let img = Image::from_vec(f.image.width(), f.image.height(), data).expect("image");
+            ex.extract_into(img.view(), &mut out);
+        } else {
+            ex.extract_into(f.image.view(), &mut out);
+        }
+        let pts: Vec<(u32, f64)> = out.points.iter().map(|p| (p.row, p.x)).collect();
+        s.add(&f.truth, &pts);
+    }
+    s
+}
+
+#[test]
+fn noise_free_plate_every_truth_point_is_found_to_a_fiftieth_of_a_pixel() {
+    let mut sensor = Sensor::default();
+    sensor.camera.bits = 16;
+    sensor.camera.k1 = -0.05;
+    let sim = Simulator::new(&sensor, &plate(8.0), RenderOptions::ideal()).expect("sim");
+    let frames = vec![sim.render(0, 0.0)];
+    for m in [Method::Gaussian, Method::Steger, Method::BlaisRioux8] {
+        let s = score(&frames, 16, m);
+        assert_eq!(
+            s.found,
+            s.truth,
+            "{}: all {} truth points",
+            m.name(),
+            s.truth
+        );
+        assert_eq!(s.false_points, 0, "{}", m.name());
+        // Tolerance: the stripe's irradiance varies across its width (1/r, cosine), which moves its intensity
+        // centre off the sheet's centre plane by a few thousandths of a pixel.
+        assert!(s.rms() < 0.02, "{}: rms {}", m.name(), s.rms());
+    }
+}
+
+#[test]
+fn noisy_plate_detection_and_accuracy() {
+    let mut sensor = Sensor::default();
+    sensor.camera.k1 = -0.05;
+    let opts = RenderOptions {
+        gloss: false,
+        ..RenderOptions::default()
+    };
+    let frames: Vec<Frame> = [6.0, 9.3, 12.7]
+        .iter()
+        .enumerate()
+        .map(|(k, &z)| {
+            Simulator::new(&sensor, &plate(z), opts.clone())
+                .expect("sim")
+                .render(k, 0.0)
+        })
+        .collect();
+    for m in [Method::Steger, Method::BlaisRioux8] {
+        let s = score(&frames, 8, m);
+        // Default noise, speckle and blur on a matte plate: everything found, nothing invented, RMS well under
+        // 0.1 px (speckle dominates).
+        assert!(
+            s.detection_rate() > 0.999,
+            "{}: detection {}",
+            m.name(),
+            s.detection_rate()
+        );
+        assert!(
+            s.false_rate() < 0.001,
+            "{}: false {}",
+            m.name(),
+            s.false_rate()
+        );
+        assert!(s.rms() < 0.08, "{}: rms {}", m.name(), s.rms());
+    }
+}
+
+#[test]
+fn demo_scene_with_ghosts_does_not_regress() {
+    // The target here (>= 99.5 % within 0.5 px, <= 0.1 % false points) is not met yet: edges of the part
+    // light half a stripe (beam tails on corners, occluding edges, albedo edges), which every estimator places
+    // off the sheet. This guards the level measured when the extractor landed.
+    let sensor = Sensor::default();
+    let sim = Simulator::new(&sensor, &Scene::demo(), RenderOptions::default()).expect("sim");
+    let frames: Vec<Frame> = (0..4).map(|k| sim.render(k * 5, k as f64 * 2.5)).collect();
+    let s = score(&frames, 8, Method::Steger);
+    assert!(
+        s.detection_rate() > 0.97,
+        "detection {}",
+        s.detection_rate()
+    );
+    assert!(s.false_rate() < 0.06, "false points {}", s.false_rate());
+}
