@@ -3,18 +3,17 @@
 //! A *peak* is a pixel after a rise (or flat) and before a fall; a *valley* a pixel after a fall and before a rise
 //! (or flat). A peak is *dominant* when it stands more than the threshold above a valley on each side (eq. 4), the
 //! highest such peak between two valleys representing the stripe. Its region of interest runs from the nearest
-//! valley on the left to the nearest valley on the right that are each more than the threshold below it (eq. 5-6).
+//! valley on the left to the nearest valley on the right that are each more than the threshold below it (eq. 5-6);
+//! a valley may be flat on its far side (a quantised flat background has no strict fall).
 //!
 //! Implementation: one pass with hysteresis finds the dominant peaks exactly as eq. 4 defines them (the running
 //! maximum is a dominant peak once the signal falls more than the threshold below it, having risen more than the
-//! threshold above the running minimum before it). Background stretches are skipped a block at a time: a block
-//! whose values stay within the threshold of the tracked extreme cannot change the state, and its extremes are
-//! found with vectorisable min/max reductions. A flat top (saturation) is one peak whose plateau is recorded.
+//! threshold above the running minimum before it). Background is skipped: no pixel at or below the line's minimum
+//! plus the threshold can start a rise, so while looking for one the scan jumps to the next pixel above that
+//! level and folds the skipped run into the running minimum with one vectorisable reduction. A flat top
+//! (saturation) is one peak whose plateau is recorded.
 
 use crate::image::Pixel;
-
-/// Pixels per block of the background skip.
-const BLOCK: usize = 16;
 
 /// One dominant peak on a scan line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,75 +63,67 @@ fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>
     let mut rising = false;
     let (mut mn, mut mx) = (v(line, 0), 0u32);
     let (mut top_start, mut top_end) = (0usize, 0usize);
+    // No pixel at or below `level` can start a rise: a rise needs a value more than the threshold above the
+    // running minimum, which is never below the line's minimum.
+    let level = if skip {
+        line.iter()
+            .copied()
+            .min()
+            .map_or(0, Pixel::to_u32)
+            .saturating_add(threshold)
+    } else {
+        0
+    };
     let mut i = 0;
     while i < n {
-        // Skip a whole block when it cannot change the state.
-        if skip && i + BLOCK <= n {
-            let block = &line[i..i + BLOCK];
-            // Separate reductions on the pixel type vectorise (one instruction per 16 or 32 pixels).
-            let (mut bmin, mut bmax) = (u32::MAX, 0u32);
-            for p in block {
-                bmin = bmin.min(p.to_u32());
-            }
-            for p in block {
-                bmax = bmax.max(p.to_u32());
-            }
-            // Falling: a rise needs some value more than the threshold above the running minimum, which is never
-            // below min(mn, bmin). Rising: a fall needs a value more than the threshold below the running maximum;
-            // a new maximum needs its position, so such blocks take the per-pixel path.
-            let quiet = if rising {
-                bmax <= mx && bmin.saturating_add(threshold) >= mx
-            } else {
-                bmax <= mn.min(bmin).saturating_add(threshold)
-            };
-            if quiet {
-                if !rising {
-                    mn = mn.min(bmin);
+        if skip && !rising {
+            // Jump to the next pixel above `level`, folding the skipped pixels into the running minimum.
+            let run = line[i..]
+                .iter()
+                .position(|p| p.to_u32() > level)
+                .unwrap_or(n - i);
+            if run > 0 {
+                mn = mn.min(
+                    line[i..i + run]
+                        .iter()
+                        .copied()
+                        .min()
+                        .map_or(u32::MAX, Pixel::to_u32),
+                );
+                i += run;
+                if i >= n {
+                    break;
                 }
-                if rising && bmax == mx && top_end + 1 == i {
-                    // The flat top continues into the block: extend it as far as it goes.
-                    let mut j = i;
-                    while j < i + BLOCK && v(line, j) == mx {
-                        top_end = j;
-                        j += 1;
-                    }
-                }
-                i += BLOCK;
-                continue;
             }
         }
-        // Not quiet (or too near the end): run the state machine pixel by pixel over the whole block.
-        let end = if skip { (i + BLOCK).min(n) } else { i + 1 };
-        while i < end {
-            let x = v(line, i);
-            if rising {
-                if x > mx {
-                    mx = x;
-                    top_start = i;
-                    top_end = i;
-                } else if x == mx && top_end + 1 == i {
-                    top_end = i;
-                } else if x + threshold < mx {
-                    out.push(Peak {
-                        top_start,
-                        top_end,
-                        value: mx,
-                        roi_left: 0,
-                        roi_right: 0,
-                    });
-                    rising = false;
-                    mn = x;
-                }
-            } else if x < mn {
-                mn = x;
-            } else if x > mn.saturating_add(threshold) {
-                rising = true;
+        let x = v(line, i);
+        if rising {
+            if x > mx {
                 mx = x;
                 top_start = i;
                 top_end = i;
+            } else if x == mx && top_end + 1 == i {
+                top_end = i;
+            } else if x + threshold < mx {
+                out.push(Peak {
+                    top_start,
+                    top_end,
+                    value: mx,
+                    roi_left: 0,
+                    roi_right: 0,
+                });
+                rising = false;
+                mn = x;
             }
-            i += 1;
+        } else if x < mn {
+            mn = x;
+        } else if x > mn.saturating_add(threshold) {
+            rising = true;
+            mx = x;
+            top_start = i;
+            top_end = i;
         }
+        i += 1;
     }
     // Regions of interest: the nearest valleys more than the threshold below each peak (eq. 5-6).
     for k in 0..out.len() {
@@ -156,8 +147,10 @@ fn nearest_valley_left<T: Pixel>(line: &[T], from: usize, stop: usize, limit: u3
         i -= 1;
         let x = v(line, i);
         if x < limit {
-            // A valley: a fall into i, then a rise or flat out of it (towards the peak).
-            let fell = i == 0 || v(line, i - 1) > x;
+            // A valley: a fall (or flat) into i, then a rise or flat out of it (towards the peak). Allowing the
+            // flat on the far side, unlike the paper's strict fall, ends the search on a quantised flat background
+            // instead of running on to the previous stripe.
+            let fell = i == 0 || v(line, i - 1) >= x;
             let rises = v(line, i + 1) >= x;
             if (fell && rises) || i == stop {
                 return i;
@@ -175,7 +168,7 @@ fn nearest_valley_right<T: Pixel>(line: &[T], from: usize, stop: usize, limit: u
         i += 1;
         let x = v(line, i);
         if x < limit {
-            let fell = v(line, i - 1) > x;
+            let fell = v(line, i - 1) >= x;
             let rises = i + 1 >= n || v(line, i + 1) >= x;
             if (fell && rises) || i == stop {
                 return i;
@@ -191,7 +184,8 @@ pub fn line_noise<T: Pixel>(line: &[T], hist: &mut Vec<u32>) -> f64 {
     if line.len() < 2 {
         return 0.0;
     }
-    let max_bin = 1024usize;
+    // Differences beyond this are stripes, not noise; a median beyond it would not be noise either.
+    let max_bin = 255usize;
     hist.clear();
     hist.resize(max_bin + 1, 0);
     for w in line.windows(2) {
