@@ -13,7 +13,6 @@ use stripe3d_core::{Image, Sensor};
 use stripe3d_io::images::{FrameData, read_frame_native};
 use stripe3d_sim::evaluate::{Score, cramer_rao_gaussian};
 use stripe3d_sim::render::R_REF_MM;
-use stripe3d_sim::scene::Plate;
 use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
 
 /// Subcommands of `stripe3d bench`.
@@ -254,21 +253,6 @@ fn plate_sensor(c: &Condition) -> Sensor {
     s
 }
 
-fn plate(z: f64) -> Scene {
-    let mut s = Scene::flat_plate();
-    s.grid_mm = 0.5;
-    s.plate = Some(Plate {
-        center_x_mm: 0.0,
-        center_y_mm: 0.0,
-        length_mm: 200.0,
-        width_mm: 160.0,
-        thickness_mm: z,
-        chamfer_mm: 0.0,
-        albedo: 0.6,
-    });
-    s
-}
-
 /// Width of the stripe in the image, pixels, for sheet sigma `sigma_mm` on a flat plate at height `z`.
 fn sigma_px(sensor: &Sensor, sigma_mm: f64, z: f64) -> f64 {
     let n = sensor.laser.plane(0).normal;
@@ -323,7 +307,7 @@ fn render_condition(c: &Condition, frames: usize) -> Result<Rendered> {
         .par_iter()
         .enumerate()
         .map(|(k, &z)| {
-            let sim = Simulator::new(&sensor, &plate(z), opts.clone())?;
+            let sim = Simulator::new(&sensor, &Scene::covering_plate(z), opts.clone())?;
             Ok((
                 sim.render(k, 0.0),
                 (sigma_px(&sensor, sensor.laser.sigma_mm, z), z),

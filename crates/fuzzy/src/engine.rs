@@ -37,6 +37,21 @@ pub struct InputVariable {
     pub terms: Vec<Term>,
 }
 
+impl InputVariable {
+    /// An enabled input variable without terms over an unbounded range (fuzzylite's defaults).
+    pub fn new(name: impl Into<String>) -> Self {
+        Self {
+            name: name.into(),
+            description: String::new(),
+            enabled: true,
+            minimum: f64::NEG_INFINITY,
+            maximum: f64::INFINITY,
+            lock_range: false,
+            terms: vec![],
+        }
+    }
+}
+
 /// How a weighted defuzzifier computes each rule's crisp output.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WeightedType {
@@ -183,6 +198,26 @@ pub struct OutputVariable {
     pub lock_previous: bool,
     /// Terms.
     pub terms: Vec<Term>,
+}
+
+impl OutputVariable {
+    /// An enabled output variable without terms, aggregation or defuzzifier, over an unbounded range, defaulting to
+    /// NaN (fuzzylite's defaults).
+    pub fn new(name: impl Into<String>) -> Self {
+        Self {
+            name: name.into(),
+            description: String::new(),
+            enabled: true,
+            minimum: f64::NEG_INFINITY,
+            maximum: f64::INFINITY,
+            lock_range: false,
+            aggregation: None,
+            defuzzifier: None,
+            default: f64::NAN,
+            lock_previous: false,
+            terms: vec![],
+        }
+    }
 }
 
 impl PartialEq for OutputVariable {
@@ -426,6 +461,22 @@ pub struct RuleBlock {
     pub activation: Option<Activation>,
     /// The rules.
     pub rules: Vec<Rule>,
+}
+
+impl RuleBlock {
+    /// An enabled rule block without operators or rules (General activation).
+    pub fn new(name: impl Into<String>) -> Self {
+        Self {
+            name: name.into(),
+            description: String::new(),
+            enabled: true,
+            conjunction: None,
+            disjunction: None,
+            implication: None,
+            activation: None,
+            rules: vec![],
+        }
+    }
 }
 
 /// A rule as text, compiled when the engine loads.

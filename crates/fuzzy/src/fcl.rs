@@ -205,14 +205,8 @@ pub fn read_with_resolution(text: &str, resolution: usize) -> Result<Engine, Fuz
                 }
                 "RULEBLOCK" => {
                     engine.blocks.push(RuleBlock {
-                        name: rest.to_string(),
-                        description: String::new(),
-                        enabled: true,
-                        conjunction: None,
-                        disjunction: None,
-                        implication: None,
                         activation: Some(Activation::General),
-                        rules: vec![],
+                        ..RuleBlock::new(rest)
                     });
                     block = Block::Rules(engine.blocks.len() - 1);
                 }
@@ -245,29 +239,9 @@ pub fn read_with_resolution(text: &str, resolution: usize) -> Result<Engine, Fuz
                 })?;
                 let name = name.trim().to_string();
                 if block == Block::VarInput {
-                    engine.inputs.push(InputVariable {
-                        name,
-                        description: String::new(),
-                        enabled: true,
-                        minimum: f64::NEG_INFINITY,
-                        maximum: f64::INFINITY,
-                        lock_range: false,
-                        terms: vec![],
-                    });
+                    engine.inputs.push(InputVariable::new(name));
                 } else {
-                    engine.outputs.push(OutputVariable {
-                        name,
-                        description: String::new(),
-                        enabled: true,
-                        minimum: f64::NEG_INFINITY,
-                        maximum: f64::INFINITY,
-                        lock_range: false,
-                        aggregation: None,
-                        defuzzifier: None,
-                        default: f64::NAN,
-                        lock_previous: false,
-                        terms: vec![],
-                    });
+                    engine.outputs.push(OutputVariable::new(name));
                 }
             }
             Block::Fuzzify(i) => {

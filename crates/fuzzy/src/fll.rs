@@ -143,38 +143,9 @@ pub fn read(text: &str) -> Result<Engine, FuzzyError> {
             "InputVariable" | "OutputVariable" | "RuleBlock" => {
                 finish(std::mem::replace(&mut section, Section::None), &mut engine);
                 section = match key {
-                    "InputVariable" => Section::Input(InputVariable {
-                        name: value.to_string(),
-                        description: String::new(),
-                        enabled: true,
-                        minimum: f64::NEG_INFINITY,
-                        maximum: f64::INFINITY,
-                        lock_range: false,
-                        terms: vec![],
-                    }),
-                    "OutputVariable" => Section::Output(OutputVariable {
-                        name: value.to_string(),
-                        description: String::new(),
-                        enabled: true,
-                        minimum: f64::NEG_INFINITY,
-                        maximum: f64::INFINITY,
-                        lock_range: false,
-                        aggregation: None,
-                        defuzzifier: None,
-                        default: f64::NAN,
-                        lock_previous: false,
-                        terms: vec![],
-                    }),
-                    _ => Section::Block(RuleBlock {
-                        name: value.to_string(),
-                        description: String::new(),
-                        enabled: true,
-                        conjunction: None,
-                        disjunction: None,
-                        implication: None,
-                        activation: None,
-                        rules: vec![],
-                    }),
+                    "InputVariable" => Section::Input(InputVariable::new(value.to_string())),
+                    "OutputVariable" => Section::Output(OutputVariable::new(value.to_string())),
+                    _ => Section::Block(RuleBlock::new(value.to_string())),
                 };
                 continue;
             }

@@ -11,21 +11,6 @@ fn examples() -> Option<PathBuf> {
     p.is_dir().then_some(p)
 }
 
-fn fld_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    let mut entries: Vec<_> = entries.flatten().map(|e| e.path()).collect();
-    entries.sort();
-    for p in entries {
-        if p.is_dir() {
-            fld_files(&p, out);
-        } else if p.extension().is_some_and(|e| e == "fld") {
-            out.push(p);
-        }
-    }
-}
-
 /// Compares an engine with the reference table; returns (rows, worst relative error, first mismatch).
 fn compare(engine: &mut Engine, table: &fld::Table) -> (usize, f64, Option<String>) {
     let cols = fld::input_columns(engine, table).expect("inputs in header");
@@ -77,7 +62,7 @@ fn every_example_engine_matches_fuzzylite() {
         return;
     };
     let mut files = Vec::new();
-    fld_files(&root, &mut files);
+    files_with(&root, "fld", &mut files);
     assert!(files.len() >= 32, "found only {} .fld files", files.len());
     let mut failures = Vec::new();
     let mut report = String::new();

@@ -347,6 +347,25 @@ impl Scene {
         }
     }
 
+    /// A matte plate of `thickness_mm` larger than the paper's field of view (200 x 160 mm), on a 0.5 mm grid (the
+    /// plate is flat, so the coarse grid is exact): a calibration target, and the flat part of accuracy tests.
+    pub fn covering_plate(thickness_mm: f64) -> Scene {
+        Scene {
+            name: format!("covering-plate-{thickness_mm}mm"),
+            grid_mm: 0.5,
+            plate: Some(Plate {
+                center_x_mm: 0.0,
+                center_y_mm: 0.0,
+                length_mm: 200.0,
+                width_mm: 160.0,
+                thickness_mm,
+                chamfer_mm: 0.0,
+                albedo: 0.6,
+            }),
+            ..Scene::flat_plate()
+        }
+    }
+
     /// A 30 mm tall 40 x 40 mm block (the absolute-height test piece).
     pub fn block() -> Scene {
         Scene {

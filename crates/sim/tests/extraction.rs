@@ -3,23 +3,7 @@
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
 use stripe3d_core::{Image, Sensor};
 use stripe3d_sim::evaluate::Score;
-use stripe3d_sim::scene::Plate;
 use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
-
-fn plate(z: f64) -> Scene {
-    let mut s = Scene::flat_plate();
-    s.grid_mm = 0.5;
-    s.plate = Some(Plate {
-        center_x_mm: 0.0,
-        center_y_mm: 0.0,
-        length_mm: 200.0,
-        width_mm: 160.0,
-        thickness_mm: z,
-        chamfer_mm: 0.0,
-        albedo: 0.6,
-    });
-    s
-}
 
 fn score(frames: &[Frame], bits: u8, method: Method) -> Score {
     let mut ex = Extractor::new(ExtractParams {
@@ -48,7 +32,8 @@ fn noise_free_plate_every_truth_point_is_found_to_a_fiftieth_of_a_pixel() {
     let mut sensor = Sensor::default();
     sensor.camera.bits = 16;
     sensor.camera.k1 = -0.05;
-    let sim = Simulator::new(&sensor, &plate(8.0), RenderOptions::ideal()).expect("sim");
+    let sim =
+        Simulator::new(&sensor, &Scene::covering_plate(8.0), RenderOptions::ideal()).expect("sim");
     let frames = vec![sim.render(0, 0.0)];
     for m in [Method::Gaussian, Method::Steger, Method::BlaisRioux8] {
         let s = score(&frames, 16, m);
@@ -78,7 +63,7 @@ fn noisy_plate_detection_and_accuracy() {
         .iter()
         .enumerate()
         .map(|(k, &z)| {
-            Simulator::new(&sensor, &plate(z), opts.clone())
+            Simulator::new(&sensor, &Scene::covering_plate(z), opts.clone())
                 .expect("sim")
                 .render(k, 0.0)
         })

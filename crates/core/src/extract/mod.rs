@@ -416,12 +416,7 @@ impl Extractor {
         let mut start = 0;
         let cands = &self.candidates;
         while start < cands.len() {
-            let line = cands[start].point.row;
-            let end = start
-                + cands[start..]
-                    .iter()
-                    .take_while(|c| c.point.row == line)
-                    .count();
+            let (_, end) = line_span(cands, start);
             match apply_policy(self.params.policy, &cands[start..end], &mut prev_x) {
                 Kept::All => out.points.extend(cands[start..end].iter().map(|c| c.point)),
                 Kept::One(i) => out.points.push(cands[start + i].point),
@@ -600,12 +595,7 @@ impl Extractor {
         let cands = &mut self.candidates;
         let mut start = 0;
         while start < cands.len() {
-            let line = cands[start].point.row;
-            let end = start
-                + cands[start..]
-                    .iter()
-                    .take_while(|c| c.point.row == line)
-                    .count();
+            let (line, end) = line_span(cands, start);
             for s in self.segments.iter_mut() {
                 if s.open && line > s.last_line + self.params.max_gap_lines {
                     s.open = false;
@@ -723,6 +713,19 @@ fn stripe_moments<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> (f64, f64) {
         0.0
     };
     (sigma, skew)
+}
+
+/// The scan line of `cands[start]` and the end of its run of candidates (candidates are in scan-line order).
+fn line_span(cands: &[Candidate], start: usize) -> (u32, usize) {
+    let line = cands[start].point.row;
+    (
+        line,
+        start
+            + cands[start..]
+                .iter()
+                .take_while(|c| c.point.row == line)
+                .count(),
+    )
 }
 
 enum Kept {

@@ -51,8 +51,10 @@ pub fn centre_of_mass_threshold<T: Pixel>(
     centre_of_mass(line, lo, hi, bg)
 }
 
-/// Middle of the two crossings of half height on the flanks of a flat top.
-pub fn plateau_centre<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> f64 {
+/// Sub-pixel positions where the profile crosses half height (between the background and the peak) on the left
+/// and right flanks of the peak's top, by linear interpolation; a flank that stays above half height up to its
+/// ROI bound crosses there.
+pub fn half_height_crossings<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> (f64, f64) {
     let level = 0.5 * (f64::from(p.value) + bg);
     let crossing = |from: usize, step: isize, stop: usize| -> f64 {
         let mut i = from as isize;
@@ -68,29 +70,23 @@ pub fn plateau_centre<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> f64 {
             i = next;
         }
     };
-    0.5 * (crossing(p.top_start, -1, p.roi_left) + crossing(p.top_end, 1, p.roi_right))
+    (
+        crossing(p.top_start, -1, p.roi_left),
+        crossing(p.top_end, 1, p.roi_right),
+    )
+}
+
+/// Middle of the two crossings of half height on the flanks of a flat top.
+pub fn plateau_centre<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> f64 {
+    let (l, r) = half_height_crossings(line, p, bg);
+    0.5 * (l + r)
 }
 
 /// Lopsidedness of the profile about `centre`: |w_l − w_r| / (w_l + w_r), with w_l and w_r the distances from
 /// the centre to the half-height crossings on either side (0 for a symmetric stripe, 1 for a cliff).
 pub fn asymmetry<T: Pixel>(line: &[T], p: &Peak, bg: f64, centre: f64) -> f64 {
-    let level = 0.5 * (f64::from(p.value) + bg);
-    let crossing = |from: usize, step: isize, stop: usize| -> f64 {
-        let mut i = from as isize;
-        loop {
-            let next = i + step;
-            if (step < 0 && next < stop as isize) || (step > 0 && next > stop as isize) {
-                return i as f64;
-            }
-            let (vi, vn) = (at(line, i), at(line, next));
-            if vn < level {
-                return i as f64 + step as f64 * (vi - level) / (vi - vn);
-            }
-            i = next;
-        }
-    };
-    let wl = centre - crossing(p.top_start, -1, p.roi_left);
-    let wr = crossing(p.top_end, 1, p.roi_right) - centre;
+    let (l, r) = half_height_crossings(line, p, bg);
+    let (wl, wr) = (centre - l, r - centre);
     if wl + wr > 0.0 {
         ((wl - wr) / (wl + wr)).abs()
     } else {
