@@ -15,6 +15,8 @@ pub trait Pixel: Copy + Default + Ord + Send + Sync + std::fmt::Debug + 'static 
     fn to_u32(self) -> u32;
     /// Saturating conversion from a (rounded) `f32`.
     fn from_f32_saturating(v: f32) -> Self;
+    /// Smallest value of a slice (`u32::MAX` when empty), reduced in the pixel type so that it vectorises.
+    fn slice_min(s: &[Self]) -> u32;
 }
 
 impl Pixel for u8 {
@@ -32,6 +34,10 @@ impl Pixel for u8 {
         // `as` saturates and maps NaN to 0.
         v.round() as u8
     }
+    #[inline]
+    fn slice_min(s: &[Self]) -> u32 {
+        s.iter().copied().min().map_or(u32::MAX, u32::from)
+    }
 }
 
 impl Pixel for u16 {
@@ -47,6 +53,10 @@ impl Pixel for u16 {
     #[inline]
     fn from_f32_saturating(v: f32) -> Self {
         v.round() as u16
+    }
+    #[inline]
+    fn slice_min(s: &[Self]) -> u32 {
+        s.iter().copied().min().map_or(u32::MAX, u32::from)
     }
 }
 
