@@ -32,6 +32,9 @@ const SHADOW_OFFSET_MM: f64 = 0.01;
 /// residuals mark a jump of the visible surface (an occluding edge), not a crossing.
 const TRUTH_RESIDUAL_MM: f64 = 1e-6;
 
+/// Largest image the simulator renders, pixels (its per-pixel ray table and buffers take about 40 bytes a pixel).
+pub const MAX_RENDER_PIXELS: usize = 16 * 1024 * 1024;
+
 /// What to render. Every effect can be switched off for closed-form tests.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RenderOptions {
@@ -143,9 +146,17 @@ impl Simulator {
                 reason: format!("{} must be 1 to 8", opts.supersample),
             });
         }
-        let (field, defects) = scene.rasterize()?;
         let cam = &sensor.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
+        if w * h > MAX_RENDER_PIXELS {
+            return Err(SimError::InvalidScene {
+                field: "camera.width x camera.height".into(),
+                reason: format!(
+                    "{w} x {h} pixels is more than the {MAX_RENDER_PIXELS} the simulator renders"
+                ),
+            });
+        }
+        let (field, defects) = scene.rasterize()?;
         let mut rays = Vec::with_capacity(w * h);
         for v in 0..h {
             for u in 0..w {

@@ -187,3 +187,15 @@ fn frames_are_deterministic_and_the_part_moves_along_plus_x() {
         );
     }
 }
+
+#[test]
+fn oversized_cameras_are_refused_not_allocated() {
+    let mut sensor = Sensor::default();
+    sensor.camera.width = 16_000;
+    sensor.camera.height = 16_000;
+    sensor.camera.cx = 7999.5;
+    sensor.camera.cy = 7999.5;
+    let err = Simulator::new(&sensor, &Scene::empty_belt(), RenderOptions::ideal())
+        .expect_err("too large");
+    assert!(err.to_string().contains("camera.width"), "{err}");
+}

@@ -507,7 +507,7 @@ impl Extractor {
                 Method::BlaisRioux4 => subpixel::blais_rioux(line, p, 2),
                 Method::BlaisRioux8 => subpixel::blais_rioux(line, p, 4),
                 Method::Steger | Method::Steger2d => {
-                    let s = steger::scale_for_width(stripe_moments(line, p, bg).0);
+                    let s = steger::scale_for_width(stripe_sigma(line, p, bg));
                     let kern = self.kernels.get(s);
                     let at = |i: isize| {
                         f64::from(line[i.clamp(0, line.len() as isize - 1) as usize].to_f32())
@@ -541,7 +541,7 @@ impl Extractor {
             let (sigma, asymmetry) = if self.params.width_tolerance.is_finite()
                 || self.params.max_asymmetry.is_finite()
             {
-                let sigma = stripe_moments(line, p, bg).0;
+                let sigma = stripe_sigma(line, p, bg);
                 let asymmetry = if sigma >= MIN_SIGMA_FOR_SYMMETRY {
                     subpixel::asymmetry(line, p, bg, x)
                 } else {
@@ -682,37 +682,23 @@ impl Extractor {
     }
 }
 
-/// Intensity-weighted standard deviation and skewness of the stripe across the scan line, within the region of
-/// interest, background subtracted. (The skewness is kept for diagnostics; sampling makes it unreliable for
-/// narrow stripes, so filtering uses the half-width symmetry instead.)
-fn stripe_moments<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> (f64, f64) {
-    let (mut s0, mut s1) = (0.0, 0.0);
+/// Intensity-weighted standard deviation of the stripe across the scan line, within the region of interest,
+/// background subtracted (1 when the region holds no signal).
+fn stripe_sigma<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> f64 {
+    let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
     let hi = p.roi_right.min(line.len() - 1);
-    let roi = || line.iter().enumerate().take(hi + 1).skip(p.roi_left);
-    for (i, q) in roi() {
+    for (i, q) in line.iter().enumerate().take(hi + 1).skip(p.roi_left) {
         let w = (f64::from(q.to_f32()) - bg).max(0.0);
+        let x = i as f64;
         s0 += w;
-        s1 += w * i as f64;
+        s1 += w * x;
+        s2 += w * x * x;
     }
     if s0 <= 0.0 {
-        return (1.0, 0.0);
+        return 1.0;
     }
     let m = s1 / s0;
-    let (mut m2, mut m3) = (0.0, 0.0);
-    for (i, q) in roi() {
-        let w = (f64::from(q.to_f32()) - bg).max(0.0);
-        let d = i as f64 - m;
-        m2 += w * d * d;
-        m3 += w * d * d * d;
-    }
-    let var = m2 / s0;
-    let sigma = var.max(0.0).sqrt();
-    let skew = if var > 0.0 {
-        (m3 / s0) / (var * sigma)
-    } else {
-        0.0
-    };
-    (sigma, skew)
+    (s2 / s0 - m * m).max(0.0).sqrt()
 }
 
 /// The scan line of `cands[start]` and the end of its run of candidates (candidates are in scan-line order).
