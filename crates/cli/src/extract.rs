@@ -59,6 +59,9 @@ pub struct ExtractArgs {
     /// Peak prominence threshold in grey levels [default: from the frame's noise, see README].
     #[arg(long)]
     pub threshold: Option<f64>,
+    /// Derive the threshold from each scan line's own noise instead of the frame's.
+    #[arg(long, conflicts_with = "threshold")]
+    pub line_threshold: bool,
     /// Scan line direction; with `columns`, `row` is the column and `x` the sub-pixel row.
     #[arg(long, value_enum, default_value = "rows")]
     pub axis: AxisArg,
@@ -119,7 +122,10 @@ pub fn run_frame(ex: &mut Extractor, frame: &FrameData, out: &mut Extraction) {
 
 /// Runs `stripe3d extract`.
 pub fn extract(args: &ExtractArgs) -> Result<()> {
-    let params = params(&args.method, args.threshold, args.axis, args.policy)?;
+    let mut params = params(&args.method, args.threshold, args.axis, args.policy)?;
+    if args.line_threshold {
+        params.threshold = Threshold::Line;
+    }
     Extractor::new(params.clone())?;
     // Decode and extract every frame before printing anything, so a bad file leaves no partial output.
     let results: Vec<Result<Extraction>> = args

@@ -154,6 +154,9 @@ pub enum Threshold {
     /// pixel, and at least 2 grey levels.
     #[default]
     Auto,
+    /// From each scan line's own noise: as [`Threshold::Auto`] but with the noise of the line itself (one more
+    /// pass over every line; for frames whose noise changes along the stripes, e.g. uneven ambient light).
+    Line,
     /// A fixed number of grey levels.
     Fixed(f64),
 }
@@ -161,6 +164,21 @@ pub enum Threshold {
 /// The automatic threshold samples every this many scan lines for the noise (enough for a robust median at a
 /// fraction of the cost of the extraction itself).
 pub const NOISE_SAMPLE_STEP: usize = 24;
+
+/// The automatic threshold for a noise level and a frame's full scale, grey levels.
+fn auto_threshold(noise: f64, full: f64) -> f64 {
+    (AUTO_NOISE_FACTOR * noise)
+        .max(AUTO_SCALE_FRACTION * full)
+        .max(2.0)
+}
+
+fn to_level(t: f64) -> u32 {
+    if t.is_finite() {
+        t.clamp(0.0, f64::from(u32::MAX)).round() as u32
+    } else {
+        u32::MAX
+    }
+}
 
 /// Noise multiple of the automatic threshold. 8 sigma keeps false peaks from noise below one in 10^10 per pixel
 /// while a stripe of 50 grey levels over noise of 2 stays well above it.
@@ -225,7 +243,7 @@ pub struct Extraction {
     pub points: Vec<StripePoint>,
     /// Number of scan lines.
     pub lines: u32,
-    /// The threshold used, grey levels.
+    /// The threshold used, grey levels (with [`Threshold::Line`], the frame's automatic value for reference).
     pub threshold: f64,
 }
 
@@ -373,9 +391,7 @@ impl Extractor {
         let full = f64::from(brightest.max(1));
         let t = match self.params.threshold {
             Threshold::Fixed(t) => t,
-            Threshold::Auto => (AUTO_NOISE_FACTOR * noise)
-                .max(AUTO_SCALE_FRACTION * full)
-                .max(2.0),
+            Threshold::Auto | Threshold::Line => auto_threshold(noise, full),
         };
         (t, full)
     }
@@ -388,20 +404,27 @@ impl Extractor {
         out.lines = lines as u32;
         let (t, full) = self.frame_threshold(&img);
         out.threshold = t;
-        let thr = if t.is_finite() {
-            t.clamp(0.0, f64::from(u32::MAX)).round() as u32
-        } else {
-            u32::MAX
-        };
+        let thr = to_level(t);
+        let per_line = self.params.threshold == Threshold::Line;
         for k in 0..lines {
             match self.params.axis {
                 Axis::Rows => {
                     let line = img.row(k);
+                    let thr = if per_line {
+                        to_level(auto_threshold(line_noise(line, &mut self.hist), full))
+                    } else {
+                        thr
+                    };
                     self.scan_line(line, k, thr, full, &img);
                 }
                 Axis::Columns => {
                     self.load_column(&img, k);
                     let buf = std::mem::take(&mut self.line_buf);
+                    let thr = if per_line {
+                        to_level(auto_threshold(line_noise(&buf, &mut self.hist), full))
+                    } else {
+                        thr
+                    };
                     self.scan_line(&buf, k, thr, full, &img);
                     self.line_buf = buf;
                 }
@@ -869,6 +892,52 @@ mod tests {
                 .expect("extract")
                 .points
                 .is_empty()
+        );
+    }
+
+    #[test]
+    fn per_line_thresholds_follow_each_lines_noise() {
+        // Noisy upper half (0 to 31 grey levels), clean lower half, one stripe everywhere.
+        let (w, h) = (80usize, 40usize);
+        let mut img = Image::<u8>::new(w, h);
+        let mut rng = 7u32;
+        for y in 0..h {
+            for x in 0..w {
+                rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                let noise = if y < 20 {
+                    f64::from(rng >> 27)
+                } else {
+                    f64::from(rng >> 31)
+                };
+                let v = 20.0 + noise + 200.0 * (-0.5 * ((x as f64 - 40.3) / 1.5).powi(2)).exp();
+                img.data_mut()[y * w + x] = v.min(255.0) as u8;
+            }
+        }
+        let line = extract(
+            img.view(),
+            &ExtractParams {
+                method: Method::ComRoi,
+                threshold: Threshold::Line,
+                ..ExtractParams::default()
+            },
+        )
+        .expect("extract");
+        if line.points.len() != h {
+            let rows: Vec<_> = line.points.iter().map(|p| (p.row, p.x)).collect();
+            panic!("one stripe per line: {rows:?}");
+        }
+        assert!(line.points.iter().all(|p| (p.x - 40.3).abs() < 0.5));
+        let frame = extract(
+            img.view(),
+            &ExtractParams {
+                threshold: Threshold::Fixed(8.0),
+                ..ExtractParams::default()
+            },
+        )
+        .expect("extract");
+        assert!(
+            frame.points.len() > h,
+            "a threshold below the noisy lines' noise finds noise peaks there"
         );
     }
 
