@@ -29,6 +29,14 @@ pub enum CoreError {
         /// Image width in pixels.
         width: usize,
     },
+    /// A shipped fuzzy rule base does not load (an edited rule file).
+    #[error("rule base {file}: {message}")]
+    RuleBase {
+        /// The rule file, e.g. `single_peak.fll`.
+        file: &'static str,
+        /// What the fuzzy engine reported.
+        message: String,
+    },
     /// A sensor description field holds an impossible value.
     #[error("{field} = {value}: {reason}")]
     InvalidSensor {

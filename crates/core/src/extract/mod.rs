@@ -319,10 +319,9 @@ impl Extractor {
                 Some(
                     RuleBase::SinglePeak
                         .engine()
-                        .map_err(|e| CoreError::InvalidSensor {
-                            field: "rules/single_peak.fll",
-                            value: String::new(),
-                            reason: e.to_string(),
+                        .map_err(|e| CoreError::RuleBase {
+                            file: RuleBase::SinglePeak.file_name(),
+                            message: e.to_string(),
                         })?,
                 )
             }
