@@ -15,6 +15,7 @@ pub mod extract;
 pub mod image;
 pub mod rules;
 pub mod sensor;
+pub mod triangulate;
 
 pub use error::CoreError;
 pub use image::{Image, ImageView, Pixel};

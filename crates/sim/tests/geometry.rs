@@ -199,3 +199,32 @@ fn oversized_cameras_are_refused_not_allocated() {
         .expect_err("too large");
     assert!(err.to_string().contains("camera.width"), "{err}");
 }
+
+#[test]
+fn truth_points_triangulate_back_to_their_world_points_with_the_true_planes() {
+    use stripe3d_core::triangulate::{FullModel, Plane};
+    let mut sensor = Sensor::default();
+    sensor.camera.k1 = -0.05;
+    let sim = Simulator::new(&sensor, &Scene::demo(), RenderOptions::ideal()).expect("sim");
+    let frame = sim.render(3, 1.5);
+    let planes = sensor
+        .laser
+        .planes()
+        .iter()
+        .map(|p| Plane::through(&p.source, &p.normal))
+        .collect();
+    let model = FullModel {
+        camera: sensor.camera.clone(),
+        planes,
+    };
+    assert!(frame.truth.len() > 4000);
+    for t in &frame.truth {
+        let p = model
+            .point(t.stripe as usize, t.u, f64::from(t.row))
+            .expect("ray meets its sheet");
+        let err =
+            ((p.x - t.world[0]).powi(2) + (p.y - t.world[1]).powi(2) + (p.z - t.world[2]).powi(2))
+                .sqrt();
+        assert!(err < 1e-6, "stripe {} row {}: {err} mm", t.stripe, t.row);
+    }
+}

@@ -1,0 +1,194 @@
+//! Triangulation: from a stripe point (stripe index, sub-pixel column, scan line) to millimetres.
+//!
+//! Two models, as the paper and today's practice use them:
+//! - [`FullModel`]: the pinhole camera with radial distortion of `sensor.toml` and one fitted 3-D plane per stripe;
+//!   each pixel's ray is intersected with its stripe's plane (exact up to the calibration).
+//! - [`LinearModel`]: the paper's eq. 3, H = tan(φ) · W/f · D2, with one constant per stripe (and per row where the
+//!   fan geometry needs it): the height is proportional to the stripe's image offset D2 from where it lies on the
+//!   belt. It ignores perspective, so it is only as good as that approximation (the scanning issue measures by how
+//!   much).
+//!
+//! Plane fitting ([`fit_plane`]) is total least squares (the smallest singular vector of the centred points).
+
+use crate::sensor::Camera;
+use nalgebra::{Matrix3, Vector3};
+
+/// A plane `normal · p = offset` with a unit normal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plane {
+    /// Unit normal.
+    pub normal: Vector3<f64>,
+    /// Signed distance of the origin along the normal, mm.
+    pub offset: f64,
+}
+
+impl Plane {
+    /// Signed distance of `p` from the plane, mm.
+    pub fn distance(&self, p: &Vector3<f64>) -> f64 {
+        self.normal.dot(p) - self.offset
+    }
+
+    /// The plane through `point` with unit `normal`.
+    pub fn through(point: &Vector3<f64>, normal: &Vector3<f64>) -> Plane {
+        let n = normal.normalize();
+        Plane {
+            normal: n,
+            offset: n.dot(point),
+        }
+    }
+}
+
+/// The best plane through `points` in the total-least-squares sense, with the RMS distance of the points from it
+/// (mm); `None` for fewer than three points or points on a line.
+pub fn fit_plane(points: &[Vector3<f64>]) -> Option<(Plane, f64)> {
+    if points.len() < 3 {
+        return None;
+    }
+    let centroid = points.iter().fold(Vector3::zeros(), |a, p| a + p) / points.len() as f64;
+    let mut scatter = Matrix3::zeros();
+    for p in points {
+        let d = p - centroid;
+        scatter += d * d.transpose();
+    }
+    let eig = scatter.symmetric_eigen();
+    let (mut min_i, mut mid) = (0, f64::INFINITY);
+    for i in 0..3 {
+        if eig.eigenvalues[i] < mid {
+            mid = eig.eigenvalues[i];
+            min_i = i;
+        }
+    }
+    // A line has two vanishing eigenvalues: no unique plane.
+    let mut sorted = [eig.eigenvalues[0], eig.eigenvalues[1], eig.eigenvalues[2]];
+    sorted.sort_by(f64::total_cmp);
+    if sorted[1] <= 1e-12 * sorted[2].max(1e-300) {
+        return None;
+    }
+    let normal = eig.eigenvectors.column(min_i).into_owned();
+    let plane = Plane::through(&centroid, &normal);
+    let rms = (points
+        .iter()
+        .map(|p| plane.distance(p).powi(2))
+        .sum::<f64>()
+        / points.len() as f64)
+        .sqrt();
+    Some((plane, rms))
+}
+
+/// Pinhole camera plus one plane per stripe.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FullModel {
+    /// The camera.
+    pub camera: Camera,
+    /// Stripe planes, stripe 0 first.
+    pub planes: Vec<Plane>,
+}
+
+impl FullModel {
+    /// World point (mm) where the ray of pixel (`u`, `v`) meets stripe `stripe`'s plane; `None` for an unknown
+    /// stripe, a ray parallel to the plane, or an intersection behind the camera.
+    pub fn point(&self, stripe: usize, u: f64, v: f64) -> Option<Vector3<f64>> {
+        let plane = self.planes.get(stripe)?;
+        let origin = self.camera.centre();
+        let dir = self.camera.ray_direction(u, v);
+        let denom = plane.normal.dot(&dir);
+        if denom.abs() < 1e-12 {
+            return None;
+        }
+        let t = (plane.offset - plane.normal.dot(&origin)) / denom;
+        (t > 0.0).then(|| origin + dir * t)
+    }
+}
+
+/// The paper's linear model: height = k · (u_belt − u) for each stripe, optionally with per-row constants.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearModel {
+    /// Per stripe: the column where it lies on the belt (z = 0) and mm of height per pixel of offset, one pair per
+    /// row (or a single pair used for every row).
+    pub stripes: Vec<Vec<(f64, f64)>>,
+}
+
+impl LinearModel {
+    /// Height (mm) of stripe `stripe` seen at column `u` on row `row`.
+    pub fn height(&self, stripe: usize, u: f64, row: usize) -> Option<f64> {
+        let rows = self.stripes.get(stripe)?;
+        let &(u_belt, k) = rows.get(row).or_else(|| rows.first())?;
+        Some(k * (u_belt - u))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sensor::Sensor;
+
+    #[test]
+    fn fitted_planes_recover_the_laser_sheets() {
+        let s = Sensor::default();
+        for i in 0..s.laser.stripes {
+            let sheet = s.laser.plane(i);
+            // Points of the sheet at several heights and y, with a little noise.
+            let mut pts = Vec::new();
+            for (k, z) in [0.0, 5.0, 10.0, 20.0].iter().enumerate() {
+                for j in 0..10 {
+                    let y = -40.0 + 8.0 * j as f64;
+                    let x = s.laser.source_x_mm
+                        + (s.laser.source_z_mm - z) * (s.laser.belt_x_mm(i) - s.laser.source_x_mm)
+                            / s.laser.source_z_mm;
+                    let noise = 1e-3 * (((k * 10 + j) as f64) * 1.7).sin();
+                    pts.push(Vector3::new(x + noise, y, *z));
+                }
+            }
+            let (plane, rms) = fit_plane(&pts).expect("plane");
+            assert!(rms < 2e-3);
+            let sheet_plane = Plane::through(&sheet.source, &sheet.normal);
+            let p = Vector3::new(s.laser.belt_x_mm(i), 3.0, 0.0);
+            assert!(plane.distance(&p).abs() < 2e-3);
+            assert!(plane.normal.dot(&sheet_plane.normal).abs() > 1.0 - 1e-6);
+        }
+        assert!(
+            fit_plane(&[Vector3::zeros(), Vector3::x(), Vector3::x() * 2.0]).is_none(),
+            "collinear"
+        );
+        assert!(fit_plane(&[Vector3::zeros(), Vector3::x()]).is_none());
+    }
+
+    #[test]
+    fn the_full_model_inverts_the_projection() {
+        let mut s = Sensor::default();
+        s.camera.k1 = -0.07;
+        let planes: Vec<Plane> = s
+            .laser
+            .planes()
+            .iter()
+            .map(|p| Plane::through(&p.source, &p.normal))
+            .collect();
+        let model = FullModel {
+            camera: s.camera.clone(),
+            planes,
+        };
+        for i in [0usize, 5, 10] {
+            for (y, z) in [(-30.0, 0.0), (12.0, 7.5), (25.0, 31.0)] {
+                let x = s.laser.source_x_mm
+                    + (s.laser.source_z_mm - z) * (s.laser.belt_x_mm(i) - s.laser.source_x_mm)
+                        / s.laser.source_z_mm;
+                let w = Vector3::new(x, y, z);
+                let (u, v) = s.camera.project(&w).expect("visible");
+                let back = model.point(i, u, v).expect("intersects");
+                assert!((back - w).norm() < 1e-9, "{back} vs {w}");
+            }
+        }
+        assert!(model.point(11, 300.0, 200.0).is_none());
+    }
+
+    #[test]
+    fn the_linear_model_is_proportional() {
+        let m = LinearModel {
+            stripes: vec![vec![(300.0, 0.2)], vec![(400.0, 0.25), (401.0, 0.26)]],
+        };
+        assert_eq!(m.height(0, 290.0, 7), Some(2.0));
+        assert_eq!(m.height(1, 391.0, 1), Some(0.26 * 10.0));
+        assert_eq!(m.height(1, 390.0, 99), Some(2.5));
+        assert_eq!(m.height(2, 390.0, 0), None);
+    }
+}
