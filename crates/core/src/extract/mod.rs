@@ -277,6 +277,7 @@ pub struct Extractor {
     widths: Vec<f64>,
     engine: Option<Engine>,
     segments: Vec<Segment>,
+    pairs: Vec<(f64, usize, usize)>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -337,6 +338,7 @@ impl Extractor {
             widths: Vec::new(),
             engine,
             segments: Vec::new(),
+            pairs: Vec::new(),
         })
     }
 
@@ -624,7 +626,8 @@ impl Extractor {
                 }
             }
             // Beliefs for every (segment, candidate) pair close enough to matter, best first.
-            let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+            let pairs = &mut self.pairs;
+            pairs.clear();
             for (si, s) in self.segments.iter().enumerate().filter(|(_, s)| s.open) {
                 let predicted = s.last_x + s.gradient * f64::from(line - s.last_line);
                 for (ci, c) in cands.iter().enumerate().take(end).skip(start) {
@@ -644,7 +647,7 @@ impl Extractor {
                 }
             }
             pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
-            for (b, si, ci) in pairs {
+            for &(b, si, ci) in pairs.iter() {
                 if cands[ci].segment != usize::MAX || self.segments[si].last_line == line {
                     continue;
                 }
