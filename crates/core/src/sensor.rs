@@ -242,6 +242,12 @@ impl Laser {
         self.center_x_mm + (i as f64 - (self.stripes as f64 - 1.0) / 2.0) * self.pitch_mm
     }
 
+    /// x where sheet `i`'s centre plane crosses height `z_mm` (it contains lines parallel to y).
+    pub fn sheet_x_mm(&self, i: usize, z_mm: f64) -> f64 {
+        self.source_x_mm
+            + (self.source_z_mm - z_mm) * (self.belt_x_mm(i) - self.source_x_mm) / self.source_z_mm
+    }
+
     /// The source of the projector in world coordinates.
     pub fn source(&self) -> Vector3<f64> {
         Vector3::new(self.source_x_mm, 0.0, self.source_z_mm)

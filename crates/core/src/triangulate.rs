@@ -132,9 +132,7 @@ mod tests {
             for (k, z) in [0.0, 5.0, 10.0, 20.0].iter().enumerate() {
                 for j in 0..10 {
                     let y = -40.0 + 8.0 * j as f64;
-                    let x = s.laser.source_x_mm
-                        + (s.laser.source_z_mm - z) * (s.laser.belt_x_mm(i) - s.laser.source_x_mm)
-                            / s.laser.source_z_mm;
+                    let x = s.laser.sheet_x_mm(i, *z);
                     let noise = 1e-3 * (((k * 10 + j) as f64) * 1.7).sin();
                     pts.push(Vector3::new(x + noise, y, *z));
                 }
@@ -169,9 +167,7 @@ mod tests {
         };
         for i in [0usize, 5, 10] {
             for (y, z) in [(-30.0, 0.0), (12.0, 7.5), (25.0, 31.0)] {
-                let x = s.laser.source_x_mm
-                    + (s.laser.source_z_mm - z) * (s.laser.belt_x_mm(i) - s.laser.source_x_mm)
-                        / s.laser.source_z_mm;
+                let x = s.laser.sheet_x_mm(i, z);
                 let w = Vector3::new(x, y, z);
                 let (u, v) = s.camera.project(&w).expect("visible");
                 let back = model.point(i, u, v).expect("intersects");

@@ -30,8 +30,7 @@ fn flat_plate_puts_each_stripe_where_pinhole_and_plane_geometry_predict() {
     let (c, l) = (&sensor.camera, &sensor.laser);
     let mut worst: f64 = 0.0;
     for i in 0..l.stripes {
-        let x_belt = l.belt_x_mm(i);
-        let x = l.source_x_mm + (l.source_z_mm - z) * (x_belt - l.source_x_mm) / l.source_z_mm;
+        let x = l.sheet_x_mm(i, z);
         let u_expected = c.cx + c.fx * x / (c.height_mm - z);
         let pts: Vec<_> = frame
             .truth
