@@ -3,6 +3,7 @@
 mod bench;
 mod extract;
 mod fuzzy;
+mod scan;
 mod simulate;
 
 use anyhow::Result;
@@ -29,6 +30,10 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Find the sub-pixel centre of every laser stripe on every scan line of camera frames.
     Extract(extract::ExtractArgs),
+    /// Fit the triangulation models from images of a flat plate at known heights.
+    Calibrate(scan::CalibrateArgs),
+    /// Turn a sequence of frames into the part's point cloud and range image.
+    Scan(scan::ScanArgs),
     /// Measure accuracy (against the simulator's ground truth) and speed.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -45,6 +50,8 @@ fn main() -> std::process::ExitCode {
         Command::Fuzzy(cmd) => fuzzy::run(&cmd),
         Command::Extract(args) => extract::extract(&args),
         Command::Bench(cmd) => bench::run(&cmd),
+        Command::Calibrate(args) => scan::run_calibrate(&args).map(|_| ()),
+        Command::Scan(args) => scan::run_scan(&args).map(|_| ()),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -320,3 +320,121 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
         "row,x,intensity,width,score\n"
     );
 }
+
+#[test]
+fn demo_calibrates_and_scans_and_scan_refuses_bad_input() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("demo");
+    let o = stripe3d(&["demo", "--out", out.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in [
+        "calib.toml",
+        "calibration/plate-10mm.png",
+        "scan/cloud.ply",
+        "scan/range.tiff",
+        "scan/range.json",
+        "scan/range.png",
+        "scan/range-colour.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let ply = std::fs::read(out.join("scan/cloud.ply")).expect("ply");
+    assert!(ply.starts_with(b"ply\nformat binary_little_endian 1.0\n"));
+    let s = |p: &str| out.join(p).to_str().expect("utf8").to_string();
+    let (sensor, calib, frames) = (
+        s("simulation/sensor.toml"),
+        s("calib.toml"),
+        s("simulation/frames"),
+    );
+    let scan_out = dir.path().join("scan2");
+    let scan_out = scan_out.to_str().expect("utf8");
+    // Encoder: wrong count, then going backwards.
+    let enc = write(dir.path(), "enc.txt", "0\n0.5\n");
+    let o = stripe3d(&[
+        "scan",
+        "--sensor",
+        &sensor,
+        "--calib",
+        &calib,
+        "--out",
+        scan_out,
+        "--encoder",
+        &enc,
+        &frames,
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("2 positions for 20 frames"),
+        "{}",
+        stderr(&o)
+    );
+    let back: String = (0..20)
+        .map(|k| format!("{}\n", if k == 7 { 1.0 } else { 0.5 * k as f64 }))
+        .collect();
+    let enc = write(dir.path(), "back.txt", &back);
+    let o = stripe3d(&[
+        "scan",
+        "--sensor",
+        &sensor,
+        "--calib",
+        &calib,
+        "--out",
+        scan_out,
+        "--encoder",
+        &enc,
+        &frames,
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("back.txt:8"), "{}", stderr(&o));
+    // A calibration from another camera.
+    let other = std::fs::read_to_string(&calib)
+        .expect("calib")
+        .replace("width = 648", "width = 640");
+    let other = write(dir.path(), "other.toml", &other);
+    let o = stripe3d(&[
+        "scan", "--sensor", &sensor, "--calib", &other, "--out", scan_out, &frames,
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("640x480"), "{}", stderr(&o));
+    assert!(
+        !Path::new(scan_out).join("cloud.ply").exists(),
+        "nothing written on refusal"
+    );
+    // Bad grid and range arguments.
+    for (flag, value, needle) in [
+        ("--grid-mm", "0", "positive"),
+        ("--range", "5:1", "above MIN"),
+    ] {
+        let o = stripe3d(&[
+            "scan", "--sensor", &sensor, "--calib", &calib, "--out", scan_out, flag, value, &frames,
+        ]);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(needle), "{flag}: {}", stderr(&o));
+    }
+    // Calibration refusals.
+    let plate = s("calibration/plate-10mm.png");
+    let o = stripe3d(&[
+        "calibrate",
+        "--sensor",
+        &sensor,
+        "--plane",
+        &format!("10:{plate}"),
+        "--plane",
+        &format!("5:{}", s("calibration/plate-5mm.png")),
+        "--out",
+        &s("c2.toml"),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("three heights"), "{}", stderr(&o));
+    let o = stripe3d(&[
+        "calibrate",
+        "--sensor",
+        &sensor,
+        "--plane",
+        &plate,
+        "--out",
+        &s("c3.toml"),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("HEIGHT_MM:IMAGE"), "{}", stderr(&o));
+}

@@ -47,4 +47,20 @@ pub enum CoreError {
         /// What is wrong and what would be right.
         reason: String,
     },
+    /// A parameter of an algorithm holds an impossible value.
+    #[error("{field} = {value}: {reason}")]
+    InvalidParameter {
+        /// The parameter's name.
+        field: &'static str,
+        /// The offending value, as text.
+        value: String,
+        /// What is wrong and what would be right.
+        reason: String,
+    },
+    /// Calibration refused its input; the message names the image and what to do.
+    #[error("calibration: {message}")]
+    Calibration {
+        /// What is wrong and what to do.
+        message: String,
+    },
 }

@@ -10,6 +10,9 @@
 //! image u along +x and v along −y; pixel centres at integer coordinates.
 #![deny(missing_docs)]
 
+pub mod accumulate;
+pub mod calibrate;
+pub mod code;
 pub mod error;
 pub mod extract;
 pub mod image;

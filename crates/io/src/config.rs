@@ -14,7 +14,7 @@ use stripe3d_sim::{Scene, SimError};
 /// Largest configuration file accepted, bytes.
 pub const MAX_CONFIG_BYTES: usize = 1 << 20;
 
-fn parse<T: DeserializeOwned>(path: &Path, text: &str) -> Result<T, IoError> {
+pub(crate) fn parse<T: DeserializeOwned>(path: &Path, text: &str) -> Result<T, IoError> {
     if text.len() > MAX_CONFIG_BYTES {
         return Err(IoError::Invalid {
             path: path.to_path_buf(),

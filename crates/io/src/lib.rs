@@ -8,12 +8,15 @@
 //! that looks complete.
 #![deny(missing_docs)]
 
+pub mod calib;
+pub mod cloud;
 pub mod config;
 pub mod error;
 pub mod files;
 pub mod images;
 pub mod truth;
 
+pub use calib::{calibration_to_toml, read_calibration};
 pub use config::{read_scene, read_sensor, scene_to_toml, sensor_to_toml};
 pub use error::IoError;
 pub use files::write_atomic;

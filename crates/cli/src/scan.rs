@@ -1,0 +1,493 @@
+//! `stripe3d calibrate` and `stripe3d scan`: from plate images to `calib.toml`, and from frames to the part's point
+//! cloud and range image.
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use stripe3d_core::Sensor;
+use stripe3d_core::accumulate::{
+    ModelKind, Profile, RangeGrid, RangeImage, RangeParams, profile_into,
+};
+use stripe3d_core::calibrate::{
+    Calibration, CalibrationParams, PlaneImage, calibrate, check_camera,
+};
+use stripe3d_core::code::{Coding, CodingParams, CodingStats, StripeCoder};
+use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
+use stripe3d_io::calib::{calibration_to_toml, read_calibration};
+use stripe3d_io::cloud::{write_ply, write_range};
+use stripe3d_io::files::prepare_dir;
+use stripe3d_io::images::{FrameData, read_frame_native};
+use stripe3d_io::{read_sensor, write_atomic};
+
+/// Largest frame accepted, pixels.
+const MAX_FRAME_PIXELS: usize = 64 << 20;
+
+/// Arguments of `stripe3d calibrate`.
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    /// Sensor description (camera, nominal laser geometry).
+    #[arg(long)]
+    pub sensor: PathBuf,
+    /// A plate image and the plate's height: HEIGHT_MM:IMAGE. Three heights at least; every stripe must be seen at
+    /// three of them.
+    #[arg(long = "plane", value_name = "HEIGHT_MM:IMAGE", required = true)]
+    pub planes: Vec<String>,
+    /// Where to write the calibration.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Sub-pixel estimator for the plate images.
+    #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(crate::extract::method_names()))]
+    pub method: String,
+}
+
+/// Triangulation model.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum ModelArg {
+    /// Pinhole camera with distortion, one fitted plane per stripe.
+    Full,
+    /// The paper's linear model, height = k (u_belt - u).
+    Linear,
+}
+
+/// Arguments of `stripe3d scan`.
+#[derive(Debug, Args)]
+pub struct ScanArgs {
+    /// Sensor description.
+    #[arg(long)]
+    pub sensor: PathBuf,
+    /// Calibration written by `stripe3d calibrate`.
+    #[arg(long)]
+    pub calib: PathBuf,
+    /// Output folder: cloud.ply, range.tiff, range.json, range.png, range-colour.png.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Frames in scan order: images (PNG, PGM, TIFF) or folders of them (taken in name order).
+    #[arg(required = true, value_name = "FRAME")]
+    pub frames: Vec<PathBuf>,
+    /// Conveyor position of each frame in mm, one per line [default: speed and fps of sensor.toml].
+    #[arg(long)]
+    pub encoder: Option<PathBuf>,
+    /// Range image cell size in mm: one number, or X,Y [default: one pixel on the belt, rounded to 0.01 mm].
+    #[arg(long, value_name = "MM[,MM]")]
+    pub grid_mm: Option<String>,
+    /// Triangulation model.
+    #[arg(long, value_enum, default_value = "full")]
+    pub model: ModelArg,
+    /// Sub-pixel estimator.
+    #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(crate::extract::method_names()))]
+    pub method: String,
+    /// Measuring range MIN:MAX in mm that stripe coding allows [default: the calibrated heights, widened by a
+    /// quarter of their span above and 1 mm below].
+    #[arg(long, value_name = "MIN:MAX")]
+    pub range: Option<String>,
+}
+
+fn extractor(method: &str) -> Result<Extractor> {
+    let method =
+        Method::from_name(method).with_context(|| format!("--method {method}: unknown"))?;
+    Ok(Extractor::new(ExtractParams {
+        method,
+        ..ExtractParams::default()
+    })?)
+}
+
+fn extract_frame(ex: &mut Extractor, frame: &FrameData) -> Extraction {
+    let mut out = Extraction::default();
+    crate::extract::run_frame(ex, frame, &mut out);
+    out
+}
+
+fn parse_plane(arg: &str) -> Result<(f64, PathBuf)> {
+    let (h, path) = arg.split_once(':').with_context(|| {
+        format!("--plane {arg}: write HEIGHT_MM:IMAGE, e.g. --plane 10:plate-10mm.png")
+    })?;
+    let h: f64 = h
+        .trim()
+        .parse()
+        .ok()
+        .filter(|h: &f64| h.is_finite())
+        .with_context(|| format!("--plane {arg}: {h:?} is not a height in mm"))?;
+    if path.is_empty() {
+        bail!("--plane {arg}: no image after the colon");
+    }
+    Ok((h, PathBuf::from(path)))
+}
+
+/// Runs `stripe3d calibrate`; returns the calibration it wrote.
+pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
+    let sensor = read_sensor(&args.sensor)?;
+    let planes: Vec<(f64, PathBuf)> = args
+        .planes
+        .iter()
+        .map(|p| parse_plane(p))
+        .collect::<Result<_>>()?;
+    extractor(&args.method)?;
+    let images: Vec<PlaneImage> = planes
+        .par_iter()
+        .map_init(
+            || extractor(&args.method),
+            |ex, (h, path)| -> Result<PlaneImage> {
+                let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
+                let (w, hgt) = frame.size();
+                if (w as u32, hgt as u32) != (sensor.camera.width, sensor.camera.height) {
+                    bail!(
+                        "{}: {w}x{hgt} pixels but sensor.toml says {}x{}",
+                        path.display(),
+                        sensor.camera.width,
+                        sensor.camera.height
+                    );
+                }
+                let ex = ex.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
+                Ok(PlaneImage {
+                    name: path.display().to_string(),
+                    height_mm: *h,
+                    points: extract_frame(ex, &frame).points,
+                })
+            },
+        )
+        .collect::<Result<_>>()?;
+    let cal = calibrate(&sensor, &images, &CalibrationParams::default())?;
+    println!(
+        "calibrated {} stripes from {} plate images at {:?} mm",
+        cal.stripes.len(),
+        images.len(),
+        cal.heights_mm
+    );
+    println!(
+        "height residuals per stripe, mm (full model: fitted plane; linear: the paper's eq. 3):"
+    );
+    println!(
+        "| stripe | heights seen (mm) | points | full RMS | full max | linear RMS | linear max |"
+    );
+    println!("|---:|---|---:|---:|---:|---:|---:|");
+    for r in &cal.stripes {
+        let seen: Vec<String> = r.heights_mm.iter().map(|h| format!("{h}")).collect();
+        let partial = if r.heights_mm.len() < cal.heights_mm.len() {
+            " (leaves the view at the others)"
+        } else {
+            ""
+        };
+        println!(
+            "| {} | {}{} | {} | {:.4} | {:.4} | {:.4} | {:.4} |",
+            r.stripe,
+            seen.join(", "),
+            partial,
+            r.points,
+            r.full_rms_mm,
+            r.full_max_mm,
+            r.linear_rms_mm,
+            r.linear_max_mm
+        );
+    }
+    write_atomic(&args.out, calibration_to_toml(&cal).as_bytes())?;
+    println!("wrote {}", args.out.display());
+    Ok(cal)
+}
+
+fn is_image(p: &Path) -> bool {
+    p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+        ["png", "pgm", "pnm", "tif", "tiff"].contains(&e.to_ascii_lowercase().as_str())
+    })
+}
+
+/// Expands folders into their images in name order.
+pub fn frame_list(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in inputs {
+        if p.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("{}: cannot list the folder", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.is_file() && is_image(f))
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                bail!(
+                    "{}: the folder holds no PNG, PGM or TIFF frames",
+                    p.display()
+                );
+            }
+            out.extend(files);
+        } else {
+            out.push(p.clone());
+        }
+    }
+    Ok(out)
+}
+
+fn parse_grid(s: &str) -> Result<[f64; 2]> {
+    let parts: Vec<&str> = s.split(',').collect();
+    let num = |t: &str| -> Result<f64> {
+        t.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .with_context(|| format!("--grid-mm {s}: {t:?} is not a positive size in mm"))
+    };
+    match parts.as_slice() {
+        [a] => {
+            let a = num(a)?;
+            Ok([a, a])
+        }
+        [a, b] => Ok([num(a)?, num(b)?]),
+        _ => bail!("--grid-mm {s}: give one size, or X,Y"),
+    }
+}
+
+fn parse_range(s: &str) -> Result<(f64, f64)> {
+    let (a, b) = s
+        .split_once(':')
+        .with_context(|| format!("--range {s}: write MIN:MAX in mm, e.g. --range -1:40"))?;
+    let num = |t: &str| -> Result<f64> {
+        t.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .with_context(|| format!("--range {s}: {t:?} is not a height in mm"))
+    };
+    let (lo, hi) = (num(a)?, num(b)?);
+    if hi <= lo {
+        bail!("--range {s}: MAX must be above MIN");
+    }
+    Ok((lo, hi))
+}
+
+/// The default measuring range for coding: the calibrated heights, widened.
+pub fn default_range(cal: &Calibration) -> (f64, f64) {
+    let (lo, hi) = cal.fitted_range_mm();
+    (lo - 1.0, hi + 0.25 * (hi - lo).max(4.0))
+}
+
+/// Travel (mm since frame 0) of each of `n` frames.
+fn travels(sensor: &Sensor, encoder: Option<&Path>, n: usize) -> Result<Vec<f64>> {
+    if let Some(enc) = encoder {
+        let t = crate::simulate::read_encoder(enc)?;
+        if t.len() != n {
+            bail!(
+                "{}: {} positions for {n} frames; give one position per frame",
+                enc.display(),
+                t.len()
+            );
+        }
+        return Ok(t);
+    }
+    let conveyor = sensor.conveyor.as_ref().with_context(|| {
+        "sensor.toml has no [conveyor] (speed_mm_s, fps): add it, or give --encoder FILE with one position per frame"
+    })?;
+    if !(conveyor.speed_mm_s.is_finite() && conveyor.fps.is_finite() && conveyor.fps > 0.0) {
+        bail!("sensor.toml: conveyor speed_mm_s and fps must be finite, fps above zero");
+    }
+    Ok((0..n).map(|k| conveyor.travel_mm(k)).collect())
+}
+
+/// What a scan produced.
+pub struct ScanResult {
+    /// Triangulated profiles, in frame order.
+    pub profiles: Vec<Profile>,
+    /// The range image.
+    pub range: RangeImage,
+    /// Coding counts over the scan.
+    pub coding: CodingStats,
+    /// Seconds for extraction, coding and triangulation of all frames.
+    pub seconds: f64,
+}
+
+/// Extracts, codes and triangulates frames, and accumulates them; writes nothing.
+#[allow(clippy::too_many_arguments)]
+pub fn scan_frames(
+    sensor: &Sensor,
+    cal: &Calibration,
+    frames: &[PathBuf],
+    travel: &[f64],
+    method: &str,
+    model: ModelKind,
+    range_mm: (f64, f64),
+    grid_mm: [f64; 2],
+) -> Result<ScanResult> {
+    let (w, h) = (sensor.camera.width, sensor.camera.height);
+    let coding_params = CodingParams {
+        min_height_mm: range_mm.0,
+        max_height_mm: range_mm.1,
+        ..CodingParams::default()
+    };
+    let coder = StripeCoder::new(&cal.full, w, h, coding_params)?;
+    extractor(method)?;
+    let bar = ProgressBar::new(frames.len() as u64).with_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames ({eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message("scanning");
+    let started = Instant::now();
+    let results: Vec<Result<(Profile, CodingStats)>> = frames
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || (extractor(method), coder.clone(), Coding::default()),
+            |(ex, coder, coding), (k, path)| {
+                let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
+                let (fw, fh) = frame.size();
+                if (fw as u32, fh as u32) != (w, h) {
+                    bail!(
+                        "{}: {fw}x{fh} pixels, but the sensor and its calibration are {w}x{h}; every frame of a scan \
+                         must come from that camera",
+                        path.display()
+                    );
+                }
+                let ex = ex.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
+                let e = extract_frame(ex, &frame);
+                coder.code_into(&e.points, coding);
+                let mut p = Profile::default();
+                profile_into(k, travel[k], &e.points, coding, &cal.full, Some(&cal.linear), model, &mut p);
+                bar.inc(1);
+                Ok((p, coding.stats))
+            },
+        )
+        .collect();
+    bar.finish_and_clear();
+    let seconds = started.elapsed().as_secs_f64();
+    let mut profiles = Vec::with_capacity(frames.len());
+    let mut stats = CodingStats::default();
+    for r in results {
+        let (p, s) = r?;
+        stats.add(&s);
+        profiles.push(p);
+    }
+    if profiles.iter().all(|p| p.points.is_empty()) {
+        bail!(
+            "nothing was measured in {} frames ({} stripe points found, none could be coded): check the exposure, \
+             the calibration and --range",
+            frames.len(),
+            stats.points
+        );
+    }
+    let step = travel
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .fold(0.0f64, f64::max);
+    let params = RangeParams {
+        spacing_mm: grid_mm,
+        max_fill_mm: (2.5 * step).max(grid_mm[0] * 1.5),
+        ..RangeParams::default()
+    };
+    let mut grid = RangeGrid::covering(&profiles, params)?;
+    grid.accumulate(&profiles);
+    Ok(ScanResult {
+        range: grid.image(),
+        profiles,
+        coding: stats,
+        seconds,
+    })
+}
+
+/// The default grid: one pixel on the belt, rounded to 0.01 mm.
+pub fn default_grid(sensor: &Sensor) -> [f64; 2] {
+    let px = (sensor.camera.belt_pixel_mm() * 100.0).round().max(1.0) / 100.0;
+    [px, px]
+}
+
+/// Runs `stripe3d scan`.
+pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
+    let sensor = read_sensor(&args.sensor)?;
+    let cal = read_calibration(&args.calib)?;
+    check_camera(&cal.full.camera, &sensor.camera).with_context(|| {
+        format!(
+            "{} does not belong to {}",
+            args.calib.display(),
+            args.sensor.display()
+        )
+    })?;
+    if cal.full.planes.len() != sensor.laser.stripes {
+        bail!(
+            "{} has {} stripes but {} has {}; calibrate this sensor",
+            args.calib.display(),
+            cal.full.planes.len(),
+            args.sensor.display(),
+            sensor.laser.stripes
+        );
+    }
+    let frames = frame_list(&args.frames)?;
+    let travel = travels(&sensor, args.encoder.as_deref(), frames.len())?;
+    let grid = match &args.grid_mm {
+        Some(g) => parse_grid(g)?,
+        None => default_grid(&sensor),
+    };
+    let range_mm = match &args.range {
+        Some(r) => parse_range(r)?,
+        None => default_range(&cal),
+    };
+    let model = match args.model {
+        ModelArg::Full => ModelKind::Full,
+        ModelArg::Linear => ModelKind::Linear,
+    };
+    let res = scan_frames(
+        &sensor,
+        &cal,
+        &frames,
+        &travel,
+        &args.method,
+        model,
+        range_mm,
+        grid,
+    )?;
+    write_scan(&args.out, &res, &frames, &travel, model, range_mm)?;
+    Ok(res)
+}
+
+/// Writes a scan's files into `out`.
+pub fn write_scan(
+    out: &Path,
+    res: &ScanResult,
+    frames: &[PathBuf],
+    travel: &[f64],
+    model: ModelKind,
+    range_mm: (f64, f64),
+) -> Result<()> {
+    prepare_dir(out)?;
+    let n = write_ply(&out.join("cloud.ply"), &res.profiles)?;
+    let s = res.coding;
+    write_range(
+        out,
+        &res.range,
+        json!({
+            "frames": frames.len(),
+            "travel_mm": [travel.first().copied().unwrap_or(0.0), travel.last().copied().unwrap_or(0.0)],
+            "model": model.name(),
+            "coding_range_mm": [range_mm.0, range_mm.1],
+            "points": n,
+            "coding": {"points": s.points, "coded": s.coded, "ambiguous": s.ambiguous, "noise": s.noise},
+        }),
+    )?;
+    let pct = |a: usize| 100.0 * a as f64 / s.points.max(1) as f64;
+    println!(
+        "scanned {} frames in {:.2} s: {} stripe points, {} coded ({:.1}%), {} ambiguous ({:.1}%) and {} false ({:.1}%) \
+         dropped",
+        frames.len(),
+        res.seconds,
+        s.points,
+        s.coded,
+        pct(s.coded),
+        s.ambiguous,
+        pct(s.ambiguous),
+        s.noise,
+        pct(s.noise)
+    );
+    let (lo, hi) = res.range.z_range().unwrap_or((0.0, 0.0));
+    println!(
+        "range image {}x{} cells of {}x{} mm, {} measured, heights {lo:.3} to {hi:.3} mm",
+        res.range.width,
+        res.range.height,
+        res.range.spacing_mm[0],
+        res.range.spacing_mm[1],
+        res.range.measured()
+    );
+    println!(
+        "wrote {}: cloud.ply ({n} points), range.tiff + range.json, range.png (16-bit, scale in range.json), range-colour.png",
+        out.display()
+    );
+    Ok(())
+}

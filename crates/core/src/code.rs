@@ -1,0 +1,1166 @@
+//! Stripe coding: which laser stripe each extracted point belongs to (stripe 0 has the smallest x at the belt).
+//!
+//! Over a realistic measuring range a stripe moves across the image by more than the stripe pitch, so a point's
+//! column alone does not say which stripe it is. The coder combines three kinds of evidence, and drops (and counts)
+//! every point the evidence does not settle; it never guesses.
+//!
+//! 1. **Geometry, per scan line.** The calibrated model gives, for every row, the band of columns each stripe can
+//!    occupy over the measuring range, and the height each candidate label implies. Labels along a row increase
+//!    with the column (the ordering constraint). A labelling of the row is scored by the stripes it declares
+//!    missing and the points it declares false: a stripe may vanish where the surface rises away from the
+//!    projector (the sheet hits a wall the camera cannot see, or a belt spot hidden from the camera), or where it
+//!    leaves the image at the height of its neighbours, almost for free; anywhere else a missing stripe costs
+//!    [`CodingParams::skip_cost`]. Each point's label is decided from min-marginals of that score (a forward and a
+//!    backward pass of dynamic programming over the row): it is kept only when the best labelling that gives it
+//!    this label beats every labelling that gives it another (or none) by [`CodingParams::margin`].
+//! 2. **Segments, with the paper's stripe-coding rules.** Points are linked down the image into segments by the
+//!    rule base `rules/stripe_coding.fll` (rules 1 and 4: a point joins a segment when its height is not very
+//!    small and not very different from its neighbour's; rules 2 and 3: a gap is bridged when it is very small, or
+//!    very large with similar heights at its boundaries; rule 5: very short segments are ignored). Heights are the
+//!    ones the candidate label implies. The rules are evaluated through the fuzzy crate once, when the coder is
+//!    built, into tables over their inputs (the same min/max inference, sampled finely enough that the decisions
+//!    match; see [`FuzzyTables`]), because one evaluation costs microseconds and a frame has thousands of points.
+//! 3. **Segment vote.** A segment takes the label most of its confidently coded points agree on (at least
+//!    [`CodingParams::min_vote_share`] of them); its undecided points inherit it where the geometry allows, and
+//!    points that confidently disagree are dropped. Points on the belt (height very small, which rule 1 keeps out
+//!    of segments) keep their per-row decision.
+//!
+//! Only scan lines along image rows are supported (stripes roughly vertical, the paper's set-up), because the
+//! ordering constraint holds along the direction that crosses the stripes.
+
+use crate::CoreError;
+use crate::extract::StripePoint;
+use crate::rules::RuleBase;
+use crate::sensor::MAX_STRIPES;
+use crate::triangulate::FullModel;
+use stripe3d_fuzzy::Engine;
+
+/// Parameters of [`StripeCoder`]; every cost is in units of one unexplained missing stripe.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CodingParams {
+    /// Lowest height a surface point may have, mm (slightly below the belt, for noise).
+    pub min_height_mm: f64,
+    /// Highest height a surface point may have, mm: the top of the measuring range.
+    pub max_height_mm: f64,
+    /// Height step (mm) across a missing stripe that explains it by occlusion.
+    pub rise_mm: f64,
+    /// Cost of a stripe declared missing with nothing to explain it.
+    pub skip_cost: f64,
+    /// Cost of a gap of stripes declared missing where the surface rises away from the projector (one wall hides
+    /// them all; each stripe adds [`CodingParams::edge_skip_cost`]).
+    pub rise_skip_cost: f64,
+    /// Cost of a stripe declared missing beyond the first or last point of a row where it would be out of view.
+    pub edge_skip_cost: f64,
+    /// Height difference (mm) between neighbouring stripes above which the surface is taken to jump.
+    pub jump_mm: f64,
+    /// Cost of a jump between neighbouring stripes: of two labellings that explain the same points, the one with
+    /// the smoother surface wins.
+    pub jump_cost: f64,
+    /// Cost of declaring a point false (a ghost or noise peak).
+    pub outlier_cost: f64,
+    /// How much cheaper the best labelling of a point must be than any other for the point to be coded.
+    pub margin: f64,
+    /// Most consecutive points of a row one labelling may declare false.
+    pub max_outlier_run: usize,
+    /// Share of a segment's confident points that must agree for the segment to take their label.
+    pub min_vote_share: f64,
+    /// Least share of a segment's points that must be confidently coded for the segment to vote at all: a long
+    /// segment settled by a handful of its rows (typically at its ends, where the surface changes) is not trusted.
+    pub min_voting_share: f64,
+    /// Largest column change (pixels) between linked points of consecutive rows of a segment.
+    pub link_px: f64,
+    /// Largest number of empty rows a segment may bridge.
+    pub max_gap_rows: u32,
+}
+
+impl Default for CodingParams {
+    fn default() -> Self {
+        Self {
+            min_height_mm: -1.0,
+            max_height_mm: 40.0,
+            // Steps lower than this do not hide a whole stripe in the paper's geometry (a 0.5 mm wall is about
+            // two pixels wide in the image).
+            rise_mm: 0.5,
+            skip_cost: 1.0,
+            // Above the margin: a rise that explains missing stripes must not be as cheap as seeing them all,
+            // or a flat surface would be read as a tilted one one stripe over (measured on flat plates).
+            rise_skip_cost: 0.4,
+            edge_skip_cost: 0.02,
+            // 1 mm over a stripe pitch of 10 mm is a 6 degree slope: gentler surfaces never pay it.
+            jump_mm: 1.0,
+            // Above the margin, so that a flat plate beats the same points read one stripe over as a tilted plate
+            // with a narrow wall (measured on the raised-plate test).
+            jump_cost: 0.35,
+            outlier_cost: 0.8,
+            margin: 0.3,
+            max_outlier_run: 2,
+            min_vote_share: 0.75,
+            // Measured on the demo part: the step whose stripes are ambiguous in every row but its first few was
+            // coded one stripe over by those few rows.
+            min_voting_share: 0.25,
+            link_px: 3.0,
+            max_gap_rows: 40,
+        }
+    }
+}
+
+impl CodingParams {
+    /// Checks the parameters; the error names the field.
+    pub fn validate(&self) -> Result<(), CoreError> {
+        let bad = |field: &'static str, value: f64, reason: &str| {
+            Err(CoreError::InvalidParameter {
+                field,
+                value: value.to_string(),
+                reason: reason.to_string(),
+            })
+        };
+        for (field, v) in [
+            ("min_height_mm", self.min_height_mm),
+            ("max_height_mm", self.max_height_mm),
+            ("rise_mm", self.rise_mm),
+            ("skip_cost", self.skip_cost),
+            ("rise_skip_cost", self.rise_skip_cost),
+            ("edge_skip_cost", self.edge_skip_cost),
+            ("jump_mm", self.jump_mm),
+            ("jump_cost", self.jump_cost),
+            ("outlier_cost", self.outlier_cost),
+            ("margin", self.margin),
+            ("min_vote_share", self.min_vote_share),
+            ("min_voting_share", self.min_voting_share),
+            ("link_px", self.link_px),
+        ] {
+            if !v.is_finite() {
+                return bad(field, v, "must be a finite number");
+            }
+        }
+        if self.max_height_mm <= self.min_height_mm {
+            return bad(
+                "max_height_mm",
+                self.max_height_mm,
+                "must be above min_height_mm",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.min_vote_share) {
+            return bad("min_vote_share", self.min_vote_share, "must be 0 to 1");
+        }
+        if !(0.0..=1.0).contains(&self.min_voting_share) {
+            return bad("min_voting_share", self.min_voting_share, "must be 0 to 1");
+        }
+        if self.link_px <= 0.0 {
+            return bad("link_px", self.link_px, "must be greater than zero");
+        }
+        Ok(())
+    }
+}
+
+/// Counts of what coding did with the points of a frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CodingStats {
+    /// Points handed to the coder.
+    pub points: usize,
+    /// Points given a stripe index.
+    pub coded: usize,
+    /// Points dropped because the evidence did not settle their stripe.
+    pub ambiguous: usize,
+    /// Points dropped as false (outside every band, declared false by the row labelling, or in a very short
+    /// segment).
+    pub noise: usize,
+}
+
+impl CodingStats {
+    /// Adds another frame's counts.
+    pub fn add(&mut self, other: &CodingStats) {
+        self.points += other.points;
+        self.coded += other.coded;
+        self.ambiguous += other.ambiguous;
+        self.noise += other.noise;
+    }
+}
+
+/// The stripe index of every point of a frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Coding {
+    /// One entry per input point, in the input's order: the stripe, or `None` when the point was dropped.
+    pub stripes: Vec<Option<u16>>,
+    /// What happened to the points.
+    pub stats: CodingStats,
+}
+
+/// A function of one or two inputs sampled on a regular grid, read back with (bi)linear interpolation and the
+/// inputs clamped to the grid: the fuzzy rule base's decisions, tabulated.
+#[derive(Debug, Clone, PartialEq)]
+struct Table2 {
+    x0: f64,
+    dx: f64,
+    nx: usize,
+    y0: f64,
+    dy: f64,
+    ny: usize,
+    values: Vec<f32>,
+}
+
+impl Table2 {
+    fn build(
+        (x0, x1, nx): (f64, f64, usize),
+        (y0, y1, ny): (f64, f64, usize),
+        mut f: impl FnMut(f64, f64) -> Result<f64, CoreError>,
+    ) -> Result<Self, CoreError> {
+        let dx = if nx > 1 {
+            (x1 - x0) / (nx - 1) as f64
+        } else {
+            1.0
+        };
+        let dy = if ny > 1 {
+            (y1 - y0) / (ny - 1) as f64
+        } else {
+            1.0
+        };
+        let mut values = Vec::with_capacity(nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                values.push(f(x0 + dx * i as f64, y0 + dy * j as f64)? as f32);
+            }
+        }
+        Ok(Self {
+            x0,
+            dx,
+            nx,
+            y0,
+            dy,
+            ny,
+            values,
+        })
+    }
+
+    #[inline]
+    fn axis(v: f64, v0: f64, dv: f64, n: usize) -> (usize, f32) {
+        let t = ((v - v0) / dv).clamp(0.0, (n - 1) as f64);
+        let i = (t as usize).min(n.saturating_sub(2));
+        (i, (t - i as f64) as f32)
+    }
+
+    #[inline]
+    fn get(&self, x: f64, y: f64) -> f32 {
+        let (i, fx) = Self::axis(x, self.x0, self.dx, self.nx);
+        let (j, fy) = Self::axis(y, self.y0, self.dy, self.ny);
+        let at =
+            |i: usize, j: usize| self.values[j.min(self.ny - 1) * self.nx + i.min(self.nx - 1)];
+        let top = at(i, j) * (1.0 - fx) + at(i + 1, j) * fx;
+        let bottom = at(i, j + 1) * (1.0 - fx) + at(i + 1, j + 1) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+}
+
+/// The stripe-coding rule base (`rules/stripe_coding.fll`), evaluated once into tables.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FuzzyTables {
+    /// `same_segment` over (height mm, height change mm).
+    same_segment: Table2,
+    /// `bridge_gap` over (gap rows, boundary difference mm).
+    bridge_gap: Table2,
+    /// `keep_segment` over (segment length points).
+    keep_segment: Table2,
+}
+
+fn rule_error(e: impl ToString) -> CoreError {
+    CoreError::RuleBase {
+        file: RuleBase::StripeCoding.file_name(),
+        message: e.to_string(),
+    }
+}
+
+fn evaluate(engine: &mut Engine, inputs: &[(usize, f64)], output: usize) -> Result<f64, CoreError> {
+    for &(i, v) in inputs {
+        engine.set_input(i, v);
+    }
+    engine.process().map_err(rule_error)?;
+    Ok(engine.output_value(output))
+}
+
+impl FuzzyTables {
+    /// Tabulates the shipped rule base.
+    pub fn shipped() -> Result<Self, CoreError> {
+        let engine = RuleBase::StripeCoding.engine().map_err(rule_error)?;
+        Self::from_engine(engine)
+    }
+
+    /// Tabulates a stripe-coding engine (inputs `height`, `height_change`, `gap`, `boundary_difference`,
+    /// `segment_length`; outputs `same_segment`, `bridge_gap`, `keep_segment`).
+    pub fn from_engine(mut e: Engine) -> Result<Self, CoreError> {
+        let input = |e: &Engine, name: &str| {
+            e.input_index(name)
+                .ok_or_else(|| rule_error(format!("no input variable `{name}`")))
+        };
+        let output = |e: &Engine, name: &str| {
+            e.output_index(name)
+                .ok_or_else(|| rule_error(format!("no output variable `{name}`")))
+        };
+        let (height, change, gap, boundary, length) = (
+            input(&e, "height")?,
+            input(&e, "height_change")?,
+            input(&e, "gap")?,
+            input(&e, "boundary_difference")?,
+            input(&e, "segment_length")?,
+        );
+        let (same, bridge, keep) = (
+            output(&e, "same_segment")?,
+            output(&e, "bridge_gap")?,
+            output(&e, "keep_segment")?,
+        );
+        // Neutral values for the inputs a table does not vary: they only feed rules of other outputs.
+        let neutral = [(gap, 0.0), (boundary, 0.0), (length, 100.0)];
+        for &(i, v) in &neutral {
+            e.set_input(i, v);
+        }
+        // Sampling: 0.02 mm of height below 1 mm (the "very small" terms live there) and 0.05 mm of height change
+        // up to 6 mm, rows of gap up to 60 and 0.05 mm of boundary difference, one point of length up to 40; the
+        // shipped terms are flat beyond those ends.
+        let same_segment = Table2::build((0.0, 1.0, 51), (0.0, 6.0, 121), |h, c| {
+            evaluate(&mut e, &[(height, h), (change, c)], same)
+        })?;
+        let bridge_gap = Table2::build((0.0, 60.0, 61), (0.0, 6.0, 121), |g, b| {
+            evaluate(&mut e, &[(gap, g), (boundary, b)], bridge)
+        })?;
+        let keep_segment = Table2::build((0.0, 40.0, 41), (0.0, 0.0, 1), |n, _| {
+            evaluate(&mut e, &[(length, n)], keep)
+        })?;
+        Ok(Self {
+            same_segment,
+            bridge_gap,
+            keep_segment,
+        })
+    }
+
+    /// Rules 1 and 4: does a point of height `height_mm` continue a segment whose last point differs by
+    /// `change_mm`?
+    pub fn same_segment(&self, height_mm: f64, change_mm: f64) -> bool {
+        self.same_segment.get(height_mm.abs(), change_mm.abs()) > 0.5
+    }
+
+    /// Rules 2 and 3: is a gap of `gap_rows` empty rows bridged when the heights at its ends differ by
+    /// `boundary_mm`?
+    pub fn bridge_gap(&self, gap_rows: u32, boundary_mm: f64) -> bool {
+        self.bridge_gap.get(f64::from(gap_rows), boundary_mm.abs()) > 0.5
+    }
+
+    /// Rule 5: is a segment of `points` points kept?
+    pub fn keep_segment(&self, points: usize) -> bool {
+        self.keep_segment.get(points as f64, 0.0) > 0.5
+    }
+}
+
+/// Per row and stripe: the band of columns the stripe can occupy and its heights at the image's side edges.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Band {
+    /// Smallest and largest column over the measuring range.
+    u_min: f32,
+    u_max: f32,
+    /// Height the stripe shows at the first and the last column (NaN where the ray misses the plane).
+    z_left: f32,
+    z_right: f32,
+    /// True when the stripe moves towards smaller columns as the height grows (the projector is on the −x side).
+    leftward: bool,
+}
+
+/// One candidate (point, label) of a row.
+#[derive(Debug, Clone, Copy)]
+struct Item {
+    /// Point's position in the row (0-based, in column order).
+    j: u16,
+    label: u16,
+    z: f32,
+    forward: f32,
+    backward: f32,
+}
+
+/// Per-point working state of one frame.
+#[derive(Debug, Clone, Copy)]
+struct PointState {
+    /// Best label of the row labelling (even when not confident); `u16::MAX` for a declared-false point.
+    best: u16,
+    confident: bool,
+    z: f32,
+    segment: u32,
+}
+
+const NO_LABEL: u16 = u16::MAX;
+const NO_SEGMENT: u32 = u32::MAX;
+
+#[derive(Debug, Clone, Default)]
+struct SegmentState {
+    last_row: u32,
+    last_u: f64,
+    last_label: u16,
+    last_z: f32,
+    length: u32,
+    /// Confident votes: up to four distinct labels with counts, plus the total.
+    votes: [(u16, u32); 4],
+    total_votes: u32,
+    open: bool,
+    taken_row: u32,
+}
+
+/// A reusable stripe coder for one calibrated sensor: bands, rule tables and buffers persist across frames.
+#[derive(Debug, Clone)]
+pub struct StripeCoder {
+    model: FullModel,
+    params: CodingParams,
+    width: u32,
+    height: u32,
+    stripes: usize,
+    bands: Vec<Band>,
+    tables: FuzzyTables,
+    order: Vec<u32>,
+    items: Vec<Item>,
+    row_start: Vec<usize>,
+    outlier_marginal: Vec<f32>,
+    state: Vec<PointState>,
+    segments: Vec<SegmentState>,
+    open: Vec<u32>,
+}
+
+impl StripeCoder {
+    /// A coder for frames of `width` x `height` pixels seen through `model`, with the shipped rule base.
+    pub fn new(
+        model: &FullModel,
+        width: u32,
+        height: u32,
+        params: CodingParams,
+    ) -> Result<Self, CoreError> {
+        Self::with_tables(model, width, height, params, FuzzyTables::shipped()?)
+    }
+
+    /// A coder with the stripe-coding rules of an edited rule base.
+    pub fn with_tables(
+        model: &FullModel,
+        width: u32,
+        height: u32,
+        params: CodingParams,
+        tables: FuzzyTables,
+    ) -> Result<Self, CoreError> {
+        params.validate()?;
+        let stripes = model.planes.len();
+        if stripes == 0 || stripes > MAX_STRIPES {
+            return Err(CoreError::InvalidParameter {
+                field: "stripes",
+                value: stripes.to_string(),
+                reason: format!("the model must have 1 to {MAX_STRIPES} stripe planes"),
+            });
+        }
+        if width == 0 || height == 0 {
+            return Err(CoreError::InvalidParameter {
+                field: "image size",
+                value: format!("{width}x{height}"),
+                reason: "must not be empty".into(),
+            });
+        }
+        let mut bands = Vec::with_capacity(height as usize * stripes);
+        let (u_first, u_last) = (0.0, f64::from(width) - 1.0);
+        // Where a stripe cannot show one end of the range, its band runs this far beyond the image.
+        let (search_lo, search_hi) = (-f64::from(width), 2.0 * f64::from(width));
+        for v in 0..height {
+            let v = f64::from(v);
+            for k in 0..stripes {
+                let z_left = model.height(k, u_first, v).unwrap_or(f64::NAN);
+                let z_right = model.height(k, u_last, v).unwrap_or(f64::NAN);
+                // NaN heights (a ray missing the plane) count as leftward, the paper's geometry.
+                let leftward = z_right.partial_cmp(&z_left) != Some(std::cmp::Ordering::Greater);
+                let at = |z: f64| model.column_at_height(k, v, z);
+                let (a, b) = (at(params.min_height_mm), at(params.max_height_mm));
+                let (u_min, u_max) = match (a, b) {
+                    (Some(a), Some(b)) => (
+                        a.min(b).clamp(search_lo, search_hi),
+                        a.max(b).clamp(search_lo, search_hi),
+                    ),
+                    // The stripe reaches only one end of the range inside the searched columns: the band runs to
+                    // the searched edge on the side the other end lies.
+                    (Some(a), None) => {
+                        if leftward {
+                            (search_lo, a)
+                        } else {
+                            (a, search_hi)
+                        }
+                    }
+                    (None, Some(b)) => {
+                        if leftward {
+                            (b, search_hi)
+                        } else {
+                            (search_lo, b)
+                        }
+                    }
+                    (None, None) => (f64::INFINITY, f64::NEG_INFINITY),
+                };
+                bands.push(Band {
+                    u_min: u_min as f32,
+                    u_max: u_max as f32,
+                    z_left: z_left as f32,
+                    z_right: z_right as f32,
+                    leftward,
+                });
+            }
+        }
+        Ok(Self {
+            model: model.clone(),
+            params,
+            width,
+            height,
+            stripes,
+            bands,
+            tables,
+            order: Vec::new(),
+            items: Vec::new(),
+            row_start: Vec::new(),
+            outlier_marginal: Vec::new(),
+            state: Vec::new(),
+            segments: Vec::new(),
+            open: Vec::new(),
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &CodingParams {
+        &self.params
+    }
+
+    /// The frame size the coder was built for, (width, height) in pixels.
+    pub fn image_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// The column band of stripe `stripe` on row `row` over the measuring range, `(min, max)`.
+    pub fn band(&self, row: u32, stripe: usize) -> Option<(f64, f64)> {
+        if row >= self.height || stripe >= self.stripes {
+            return None;
+        }
+        let b = self.bands[row as usize * self.stripes + stripe];
+        Some((f64::from(b.u_min), f64::from(b.u_max)))
+    }
+
+    /// Codes the points of one frame (extracted along rows, any order) into `out`.
+    pub fn code_into(&mut self, points: &[StripePoint], out: &mut Coding) {
+        out.stripes.clear();
+        out.stripes.resize(points.len(), None);
+        out.stats = CodingStats {
+            points: points.len(),
+            ..CodingStats::default()
+        };
+        // Column order within rows; points on rows outside the image are dropped as noise.
+        self.order.clear();
+        self.order
+            .extend((0..points.len() as u32).filter(|&i| points[i as usize].row < self.height));
+        self.order.sort_by(|&a, &b| {
+            let (pa, pb) = (&points[a as usize], &points[b as usize]);
+            pa.row.cmp(&pb.row).then(pa.x.total_cmp(&pb.x))
+        });
+        self.state.clear();
+        self.state.resize(
+            points.len(),
+            PointState {
+                best: NO_LABEL,
+                confident: false,
+                z: f32::NAN,
+                segment: NO_SEGMENT,
+            },
+        );
+        // Pass 1: each row on its own.
+        let mut start = 0;
+        while start < self.order.len() {
+            let row = points[self.order[start] as usize].row;
+            let mut end = start + 1;
+            while end < self.order.len() && points[self.order[end] as usize].row == row {
+                end += 1;
+            }
+            self.label_row(points, start, end, row);
+            start = end;
+        }
+        // Pass 2: segments down the image.
+        self.link_segments(points);
+        // Pass 3: votes, then the final ordering check per row.
+        self.decide(points, out);
+    }
+
+    #[inline]
+    fn band_of(&self, row: u32, k: usize) -> &Band {
+        &self.bands[row as usize * self.stripes + k]
+    }
+
+    /// Cost of the transition between two labelled points of heights `za` and `zb`: stripes `from + 1 .. to`
+    /// missing, or the surface jumping between neighbouring stripes.
+    #[inline]
+    fn inner_skip(&self, row: u32, from: u16, to: u16, za: f32, zb: f32) -> f32 {
+        let n = u32::from(to) - u32::from(from) - 1;
+        if n == 0 {
+            return if f64::from((zb - za).abs()) > self.params.jump_mm {
+                self.params.jump_cost as f32
+            } else {
+                0.0
+            };
+        }
+        let leftward = self.band_of(row, usize::from(to)).leftward;
+        let rise = if leftward { zb - za } else { za - zb };
+        if f64::from(rise) >= self.params.rise_mm {
+            // One wall hides all the stripes it hides: one event, plus a little per stripe.
+            (self.params.rise_skip_cost + f64::from(n) * self.params.edge_skip_cost) as f32
+        } else {
+            n as f32 * self.params.skip_cost as f32
+        }
+    }
+
+    /// Cost of stripes hidden beyond the end of a row on the projector's side by a rise from the belt to the
+    /// first point there (height `z`): `None` when the point is too low for that.
+    fn belt_rise_skip(&self, n: usize, z: f32) -> Option<f32> {
+        (n > 0 && f64::from(z) >= self.params.rise_mm)
+            .then_some((self.params.rise_skip_cost + n as f64 * self.params.edge_skip_cost) as f32)
+    }
+
+    /// Cost of stripes `0 .. label` missing left of the first labelled point (height `z`): each out of view at
+    /// that height, or (projector on the left) all hidden by the rise from the belt to the point.
+    fn left_skip(&self, row: u32, label: u16, z: f32) -> f32 {
+        let rise = self.params.rise_mm as f32;
+        let each: f32 = (0..usize::from(label))
+            .map(|k| {
+                let b = self.band_of(row, k);
+                // Out of view at this height: the stripe shows heights above z_left only left of column 0.
+                let gone = b.z_left.is_nan()
+                    || if b.leftward {
+                        z >= b.z_left - rise
+                    } else {
+                        z <= b.z_left + rise
+                    };
+                if gone {
+                    self.params.edge_skip_cost as f32
+                } else {
+                    self.params.skip_cost as f32
+                }
+            })
+            .sum();
+        let projector_left = self.band_of(row, usize::from(label)).leftward;
+        match self.belt_rise_skip(usize::from(label), z) {
+            Some(c) if projector_left => each.min(c),
+            _ => each,
+        }
+    }
+
+    /// Cost of stripes after `label` missing right of the last labelled point (height `z`).
+    fn right_skip(&self, row: u32, label: u16, z: f32) -> f32 {
+        let rise = self.params.rise_mm as f32;
+        let each: f32 = (usize::from(label) + 1..self.stripes)
+            .map(|k| {
+                let b = self.band_of(row, k);
+                let gone = b.z_right.is_nan()
+                    || if b.leftward {
+                        z <= b.z_right + rise
+                    } else {
+                        z >= b.z_right - rise
+                    };
+                if gone {
+                    self.params.edge_skip_cost as f32
+                } else {
+                    self.params.skip_cost as f32
+                }
+            })
+            .sum();
+        let projector_left = self.band_of(row, usize::from(label)).leftward;
+        match self.belt_rise_skip(self.stripes - 1 - usize::from(label), z) {
+            Some(c) if !projector_left => each.min(c),
+            _ => each,
+        }
+    }
+
+    /// Pass 1 over the points `order[start..end]` of one row.
+    fn label_row(&mut self, points: &[StripePoint], start: usize, end: usize, row: u32) {
+        let m = end - start;
+        let q = self.params.outlier_cost as f32;
+        let run = self.params.max_outlier_run;
+        let v = f64::from(row);
+        self.items.clear();
+        self.row_start.clear();
+        for j in 0..m {
+            self.row_start.push(self.items.len());
+            let u = points[self.order[start + j] as usize].x;
+            for k in 0..self.stripes {
+                let b = self.band_of(row, k);
+                let uf = u as f32;
+                if !(uf >= b.u_min && uf <= b.u_max) {
+                    continue;
+                }
+                if let Some(z) = self.model.height(k, u, v) {
+                    self.items.push(Item {
+                        j: j as u16,
+                        label: k as u16,
+                        z: z as f32,
+                        forward: f32::INFINITY,
+                        backward: f32::INFINITY,
+                    });
+                }
+            }
+        }
+        self.row_start.push(self.items.len());
+        // Forward: best cost of the row's left part ending with this item labelled.
+        for bi in 0..self.items.len() {
+            let b = self.items[bi];
+            let jb = usize::from(b.j);
+            let mut best = q * jb as f32 + self.left_skip(row, b.label, b.z);
+            for ja in jb.saturating_sub(run + 1)..jb {
+                for ai in self.row_start[ja]..self.row_start[ja + 1] {
+                    let a = self.items[ai];
+                    if a.label >= b.label {
+                        continue;
+                    }
+                    let c = a.forward
+                        + q * (jb - ja - 1) as f32
+                        + self.inner_skip(row, a.label, b.label, a.z, b.z);
+                    best = best.min(c);
+                }
+            }
+            self.items[bi].forward = best;
+        }
+        // Backward: best cost of the right part given this item labelled.
+        for ai in (0..self.items.len()).rev() {
+            let a = self.items[ai];
+            let ja = usize::from(a.j);
+            let mut best = q * (m - 1 - ja) as f32 + self.right_skip(row, a.label, a.z);
+            for jb in ja + 1..(ja + run + 2).min(m) {
+                for bi in self.row_start[jb]..self.row_start[jb + 1] {
+                    let b = self.items[bi];
+                    if b.label <= a.label {
+                        continue;
+                    }
+                    let c = b.backward
+                        + q * (jb - ja - 1) as f32
+                        + self.inner_skip(row, a.label, b.label, a.z, b.z);
+                    best = best.min(c);
+                }
+            }
+            self.items[ai].backward = best;
+        }
+        // Min-marginals of "point j is false".
+        self.outlier_marginal.clear();
+        // No point labelled at all: every stripe missing.
+        let nothing = q * m as f32 + self.stripes as f32 * self.params.skip_cost as f32;
+        self.outlier_marginal.resize(m, nothing);
+        let mut prefix = f32::INFINITY; // best cost ending the labelling at a point left of j
+        for j in 0..m {
+            if j > 0 {
+                for ai in self.row_start[j - 1]..self.row_start[j] {
+                    let a = self.items[ai];
+                    let end_here = a.forward
+                        + q * (m - 1 - usize::from(a.j)) as f32
+                        + self.right_skip(row, a.label, a.z);
+                    prefix = prefix.min(end_here);
+                }
+            }
+            self.outlier_marginal[j] = self.outlier_marginal[j].min(prefix);
+        }
+        let mut suffix = f32::INFINITY; // best cost starting the labelling at a point right of j
+        for j in (0..m).rev() {
+            if j + 1 < m {
+                for bi in self.row_start[j + 1]..self.row_start[j + 2] {
+                    let b = self.items[bi];
+                    let start_here = q * usize::from(b.j) as f32
+                        + self.left_skip(row, b.label, b.z)
+                        + b.backward;
+                    suffix = suffix.min(start_here);
+                }
+            }
+            self.outlier_marginal[j] = self.outlier_marginal[j].min(suffix);
+        }
+        for ja in 0..m {
+            for jb in ja + 2..(ja + run + 2).min(m) {
+                for ai in self.row_start[ja]..self.row_start[ja + 1] {
+                    let a = self.items[ai];
+                    for bi in self.row_start[jb]..self.row_start[jb + 1] {
+                        let b = self.items[bi];
+                        if b.label <= a.label {
+                            continue;
+                        }
+                        let c = a.forward
+                            + q * (jb - ja - 1) as f32
+                            + self.inner_skip(row, a.label, b.label, a.z, b.z)
+                            + b.backward;
+                        for j in ja + 1..jb {
+                            self.outlier_marginal[j] = self.outlier_marginal[j].min(c);
+                        }
+                    }
+                }
+            }
+        }
+        // Decisions.
+        let margin = self.params.margin as f32;
+        for j in 0..m {
+            let idx = self.order[start + j] as usize;
+            let (mut best, mut best_label, mut best_z, mut second) =
+                (f32::INFINITY, NO_LABEL, f32::NAN, f32::INFINITY);
+            for it in &self.items[self.row_start[j]..self.row_start[j + 1]] {
+                let c = it.forward + it.backward;
+                if c < best {
+                    second = best;
+                    best = c;
+                    best_label = it.label;
+                    best_z = it.z;
+                } else if c < second {
+                    second = c;
+                }
+            }
+            let outlier = self.outlier_marginal[j];
+            let st = &mut self.state[idx];
+            if best_label == NO_LABEL || outlier + margin <= best {
+                st.best = NO_LABEL;
+                st.confident = true;
+            } else {
+                st.best = best_label;
+                st.z = best_z;
+                st.confident = best + margin <= second.min(outlier);
+            }
+        }
+    }
+
+    /// Pass 2: links points of consecutive rows into segments with the fuzzy rules.
+    fn link_segments(&mut self, points: &[StripePoint]) {
+        self.segments.clear();
+        self.open.clear();
+        let max_gap = self.params.max_gap_rows;
+        let mut i = 0;
+        while i < self.order.len() {
+            let row = points[self.order[i] as usize].row;
+            // Close segments that can no longer be continued.
+            self.open.retain(|&s| {
+                let seg = &self.segments[s as usize];
+                row - seg.last_row - 1 <= max_gap
+            });
+            while i < self.order.len() && points[self.order[i] as usize].row == row {
+                let idx = self.order[i] as usize;
+                i += 1;
+                let st = self.state[idx];
+                if st.best == NO_LABEL {
+                    continue;
+                }
+                let p = &points[idx];
+                // The closest open segment that the rules let this point continue.
+                let mut chosen: Option<(u32, f64)> = None;
+                for &s in &self.open {
+                    let seg = &self.segments[s as usize];
+                    if seg.taken_row == row {
+                        continue;
+                    }
+                    let gap = row - seg.last_row - 1;
+                    let du = (p.x - seg.last_u).abs();
+                    if du > self.params.link_px * (1.0 + f64::from(gap)) {
+                        continue;
+                    }
+                    // Heights compared under the segment's label.
+                    let z = self
+                        .model
+                        .height(usize::from(seg.last_label), p.x, f64::from(row))
+                        .unwrap_or(f64::NAN);
+                    let change = (z - f64::from(seg.last_z)).abs();
+                    let ok = if gap == 0 {
+                        self.tables.same_segment(z, change)
+                    } else {
+                        self.tables.same_segment(z, 0.0) && self.tables.bridge_gap(gap, change)
+                    };
+                    if ok && chosen.is_none_or(|(_, d)| du < d) {
+                        chosen = Some((s, du));
+                    }
+                }
+                let s = match chosen {
+                    Some((s, _)) => s,
+                    None => {
+                        // Rule 1: only points that are not very low start segments.
+                        if !self.tables.same_segment(f64::from(st.z), 0.0) {
+                            continue;
+                        }
+                        let s = self.segments.len() as u32;
+                        self.segments.push(SegmentState {
+                            open: true,
+                            ..SegmentState::default()
+                        });
+                        self.open.push(s);
+                        s
+                    }
+                };
+                let seg = &mut self.segments[s as usize];
+                seg.last_row = row;
+                seg.taken_row = row;
+                seg.last_u = p.x;
+                seg.last_label = st.best;
+                seg.last_z = st.z;
+                seg.length += 1;
+                if st.confident {
+                    seg.total_votes += 1;
+                    if let Some(v) = seg.votes.iter_mut().find(|v| v.1 > 0 && v.0 == st.best) {
+                        v.1 += 1;
+                    } else if let Some(v) = seg.votes.iter_mut().find(|v| v.1 == 0) {
+                        *v = (st.best, 1);
+                    }
+                }
+                self.state[idx].segment = s;
+            }
+        }
+        for seg in &mut self.segments {
+            seg.open = false;
+        }
+    }
+
+    /// Pass 3: segment votes, per-point decisions and the ordering check.
+    fn decide(&mut self, points: &[StripePoint], out: &mut Coding) {
+        let share = self.params.min_vote_share;
+        for &idx in &self.order {
+            let idx = idx as usize;
+            let st = self.state[idx];
+            let p = &points[idx];
+            let label = if st.best == NO_LABEL {
+                None
+            } else if st.segment == NO_SEGMENT {
+                // Belt points: their row's decision.
+                st.confident.then_some(st.best)
+            } else {
+                let seg = &self.segments[st.segment as usize];
+                if !self.tables.keep_segment(seg.length as usize) {
+                    None
+                } else {
+                    let winner = seg.votes.iter().max_by_key(|v| v.1).copied();
+                    match winner {
+                        Some((w, c))
+                            if c > 0
+                                && f64::from(c) >= share * f64::from(seg.total_votes)
+                                && f64::from(seg.total_votes)
+                                    >= self.params.min_voting_share * f64::from(seg.length) =>
+                        {
+                            // A point the row labelling would label otherwise (even without confidence) is
+                            // not relabelled: where a stripe on one surface lines up with its neighbour on
+                            // another, segments link across the jump.
+                            if st.best != w {
+                                None
+                            } else {
+                                let b = self.band_of(p.row, usize::from(w));
+                                let uf = p.x as f32;
+                                (uf >= b.u_min && uf <= b.u_max).then_some(w)
+                            }
+                        }
+                        _ => None,
+                    }
+                }
+            };
+            out.stripes[idx] = label;
+        }
+        // Ordering: labels must grow with the column along every row; drop both sides of a violation.
+        let mut i = 0;
+        while i < self.order.len() {
+            let row = points[self.order[i] as usize].row;
+            let mut end = i;
+            while end < self.order.len() && points[self.order[end] as usize].row == row {
+                end += 1;
+            }
+            let mut last: Option<(usize, u16)> = None;
+            for &idx in &self.order[i..end] {
+                let idx = idx as usize;
+                if let Some(l) = out.stripes[idx] {
+                    if let Some((prev, pl)) = last
+                        && pl >= l
+                    {
+                        out.stripes[prev] = None;
+                        out.stripes[idx] = None;
+                        self.state[idx].confident = false;
+                        self.state[prev].confident = false;
+                        last = None;
+                        continue;
+                    }
+                    last = Some((idx, l));
+                }
+            }
+            i = end;
+        }
+        for (idx, l) in out.stripes.iter().enumerate() {
+            let st = &self.state[idx];
+            match l {
+                Some(_) => out.stats.coded += 1,
+                None if st.best == NO_LABEL => out.stats.noise += 1,
+                None if st.segment != NO_SEGMENT
+                    && !self
+                        .tables
+                        .keep_segment(self.segments[st.segment as usize].length as usize) =>
+                {
+                    out.stats.noise += 1
+                }
+                None => out.stats.ambiguous += 1,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sensor::Sensor;
+
+    fn point(row: u32, x: f64) -> StripePoint {
+        StripePoint {
+            row,
+            x,
+            intensity: 100.0,
+            width: 4.0,
+            score: 1.0,
+        }
+    }
+
+    /// Points of a flat surface at height `z` for all stripes whose column is in view, rows `rows`.
+    fn flat(
+        model: &FullModel,
+        sensor: &Sensor,
+        z: f64,
+        rows: std::ops::Range<u32>,
+    ) -> Vec<(StripePoint, u16)> {
+        let mut out = Vec::new();
+        for row in rows {
+            for k in 0..sensor.laser.stripes {
+                let u = model
+                    .column_at_height(k, f64::from(row), z)
+                    .expect("column");
+                if u >= 0.0 && u <= f64::from(sensor.camera.width) - 1.0 {
+                    out.push((point(row, u), k as u16));
+                }
+            }
+        }
+        out
+    }
+
+    fn code(coder: &mut StripeCoder, pts: &[(StripePoint, u16)]) -> (Coding, usize) {
+        let points: Vec<StripePoint> = pts.iter().map(|p| p.0).collect();
+        let mut out = Coding::default();
+        coder.code_into(&points, &mut out);
+        let wrong = out
+            .stripes
+            .iter()
+            .zip(pts)
+            .filter(|(l, p)| l.is_some_and(|l| l != p.1))
+            .count();
+        (out, wrong)
+    }
+
+    #[test]
+    fn the_fuzzy_tables_follow_the_rules() {
+        let t = FuzzyTables::shipped().expect("tables");
+        assert!(t.same_segment(5.0, 0.05));
+        assert!(!t.same_segment(5.0, 5.0));
+        assert!(
+            !t.same_segment(0.0, 0.0),
+            "rule 1: belt points are not segments"
+        );
+        assert!(t.bridge_gap(1, 3.0), "rule 2: a very small gap is bridged");
+        assert!(t.bridge_gap(50, 0.1), "rule 3");
+        assert!(!t.bridge_gap(20, 3.0));
+        assert!(!t.keep_segment(2), "rule 5");
+        assert!(t.keep_segment(30));
+    }
+
+    #[test]
+    fn bands_contain_the_flat_surfaces_of_the_range() {
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        for (p, k) in flat(&model, &sensor, 12.0, 0..480) {
+            let (lo, hi) = coder.band(p.row, usize::from(k)).expect("band");
+            assert!(p.x >= lo && p.x <= hi, "{p:?} stripe {k} band {lo}..{hi}");
+        }
+        assert!(coder.band(480, 0).is_none());
+    }
+
+    #[test]
+    fn a_flat_plate_at_any_height_is_coded_without_a_wrong_index() {
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        for z in [0.0, 3.0, 7.5, 15.0, 30.0] {
+            let pts = flat(&model, &sensor, z, 0..480);
+            let (out, wrong) = code(&mut coder, &pts);
+            assert_eq!(wrong, 0, "z = {z}");
+            assert!(
+                out.stats.coded as f64 > 0.99 * pts.len() as f64,
+                "z = {z}: {:?}",
+                out.stats
+            );
+        }
+    }
+
+    #[test]
+    fn a_raised_plate_with_a_hidden_stripe_is_coded_by_the_occlusion_rule() {
+        // Rows 0..100 see the belt; rows 100..480 a plate 10 mm high whose left edge hides one stripe.
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        let mut pts = flat(&model, &sensor, 0.0, 0..100);
+        for (p, k) in flat(&model, &sensor, 0.0, 100..480) {
+            if k == 0 || k == 10 {
+                pts.push((p, k));
+            }
+        }
+        for (p, k) in flat(&model, &sensor, 10.0, 100..480) {
+            if (2..=9).contains(&k) {
+                pts.push((p, k));
+            }
+        }
+        pts.sort_by(|a, b| a.0.row.cmp(&b.0.row).then(a.0.x.total_cmp(&b.0.x)));
+        let (out, wrong) = code(&mut coder, &pts);
+        assert_eq!(wrong, 0);
+        assert!(
+            out.stats.coded as f64 > 0.99 * pts.len() as f64,
+            "{:?}",
+            out.stats
+        );
+    }
+
+    #[test]
+    fn a_ghost_point_is_dropped_not_coded() {
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        let mut pts = flat(&model, &sensor, 5.0, 0..480);
+        // A short ghost segment between two stripes.
+        let ghost: Vec<(StripePoint, u16)> = (200..203)
+            .map(|r| {
+                let a = pts
+                    .iter()
+                    .find(|p| p.0.row == r && p.1 == 4)
+                    .expect("p")
+                    .0
+                    .x;
+                let b = pts
+                    .iter()
+                    .find(|p| p.0.row == r && p.1 == 5)
+                    .expect("p")
+                    .0
+                    .x;
+                (point(r, 0.5 * (a + b)), NO_LABEL)
+            })
+            .collect();
+        pts.extend(ghost);
+        pts.sort_by(|a, b| a.0.row.cmp(&b.0.row).then(a.0.x.total_cmp(&b.0.x)));
+        let (out, wrong) = code(&mut coder, &pts);
+        assert_eq!(wrong, 0, "{:?}", out.stats);
+        assert!(out.stats.noise + out.stats.ambiguous >= 3);
+    }
+
+    #[test]
+    fn points_outside_the_image_and_bad_parameters_are_handled() {
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        let (out, _) = code(
+            &mut coder,
+            &[(point(900, 10.0), 0), (point(3, f64::NAN), 0)],
+        );
+        assert_eq!(out.stats.coded, 0);
+        assert_eq!(out.stripes, vec![None, None]);
+        let bad = CodingParams {
+            max_height_mm: -5.0,
+            ..CodingParams::default()
+        };
+        assert!(StripeCoder::new(&model, 648, 480, bad).is_err());
+        let nan = CodingParams {
+            margin: f64::NAN,
+            ..CodingParams::default()
+        };
+        assert!(StripeCoder::new(&model, 648, 480, nan).is_err());
+    }
+}
