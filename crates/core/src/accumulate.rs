@@ -245,14 +245,27 @@ impl RangeGrid {
 
     /// Adds the profiles of a scan, in frame order.
     pub fn accumulate(&mut self, profiles: &[Profile]) {
-        // Last sample of each (stripe, row) in the previous frame.
-        let mut last: std::collections::HashMap<(u16, u32), (usize, f64, f64, f64)> =
-            std::collections::HashMap::new();
+        // Last sample of each (stripe, row): (frame, x, y, z).
+        let rows = profiles
+            .iter()
+            .flat_map(|p| &p.points)
+            .map(|p| p.row as usize + 1)
+            .max()
+            .unwrap_or(0);
+        let stripes = profiles
+            .iter()
+            .flat_map(|p| &p.points)
+            .map(|p| usize::from(p.stripe) + 1)
+            .max()
+            .unwrap_or(0);
+        let mut last: Vec<(usize, f64, f64, f64)> =
+            vec![(usize::MAX, 0.0, 0.0, 0.0); rows * stripes];
         let dx = self.params.spacing_mm[0];
         for prof in profiles {
             for p in &prof.points {
-                let key = (p.stripe, p.row);
-                if let Some(&(frame, x0, y0, z0)) = last.get(&key)
+                let key = usize::from(p.stripe) * rows + p.row as usize;
+                let (frame, x0, y0, z0) = last[key];
+                if frame != usize::MAX
                     && frame + 1 == prof.frame
                     && (p.x_mm - x0).abs() <= self.params.max_fill_mm
                     && (p.z_mm - z0).abs() <= self.params.max_fill_step_mm
@@ -271,7 +284,7 @@ impl RangeGrid {
                     }
                 }
                 self.add(p.x_mm, p.y_mm, p.z_mm);
-                last.insert(key, (prof.frame, p.x_mm, p.y_mm, p.z_mm));
+                last[key] = (prof.frame, p.x_mm, p.y_mm, p.z_mm);
             }
         }
     }

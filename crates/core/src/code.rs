@@ -371,6 +371,10 @@ struct Item {
     z: f32,
     forward: f32,
     backward: f32,
+    /// Cost of the stripes missing before this item when it is the row's first labelled point.
+    start: f32,
+    /// Cost of the stripes missing after it when it is the last.
+    end: f32,
 }
 
 /// Per-point working state of one frame.
@@ -685,12 +689,15 @@ impl StripeCoder {
                     continue;
                 }
                 if let Some(z) = self.model.height(k, u, v) {
+                    let z = z as f32;
                     self.items.push(Item {
                         j: j as u16,
                         label: k as u16,
-                        z: z as f32,
+                        z,
                         forward: f32::INFINITY,
                         backward: f32::INFINITY,
+                        start: q * j as f32 + self.left_skip(row, k as u16, z),
+                        end: q * (m - 1 - j) as f32 + self.right_skip(row, k as u16, z),
                     });
                 }
             }
@@ -700,7 +707,7 @@ impl StripeCoder {
         for bi in 0..self.items.len() {
             let b = self.items[bi];
             let jb = usize::from(b.j);
-            let mut best = q * jb as f32 + self.left_skip(row, b.label, b.z);
+            let mut best = b.start;
             for ja in jb.saturating_sub(run + 1)..jb {
                 for ai in self.row_start[ja]..self.row_start[ja + 1] {
                     let a = self.items[ai];
@@ -719,7 +726,7 @@ impl StripeCoder {
         for ai in (0..self.items.len()).rev() {
             let a = self.items[ai];
             let ja = usize::from(a.j);
-            let mut best = q * (m - 1 - ja) as f32 + self.right_skip(row, a.label, a.z);
+            let mut best = a.end;
             for jb in ja + 1..(ja + run + 2).min(m) {
                 for bi in self.row_start[jb]..self.row_start[jb + 1] {
                     let b = self.items[bi];
@@ -744,9 +751,7 @@ impl StripeCoder {
             if j > 0 {
                 for ai in self.row_start[j - 1]..self.row_start[j] {
                     let a = self.items[ai];
-                    let end_here = a.forward
-                        + q * (m - 1 - usize::from(a.j)) as f32
-                        + self.right_skip(row, a.label, a.z);
+                    let end_here = a.forward + a.end;
                     prefix = prefix.min(end_here);
                 }
             }
@@ -757,9 +762,7 @@ impl StripeCoder {
             if j + 1 < m {
                 for bi in self.row_start[j + 1]..self.row_start[j + 2] {
                     let b = self.items[bi];
-                    let start_here = q * usize::from(b.j) as f32
-                        + self.left_skip(row, b.label, b.z)
-                        + b.backward;
+                    let start_here = b.start + b.backward;
                     suffix = suffix.min(start_here);
                 }
             }

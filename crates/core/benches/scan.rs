@@ -1,0 +1,101 @@
+//! Per-frame cost of the stages after extraction: stripe coding, triangulation, accumulation, on a 648x480 frame
+//! of the paper's set-up with 11 stripes on a 10 mm plate (5,280 points).
+
+use stripe3d_core::Sensor;
+use stripe3d_core::accumulate::{ModelKind, Profile, RangeGrid, RangeParams, profile_into};
+use stripe3d_core::code::{Coding, CodingParams, StripeCoder};
+use stripe3d_core::extract::StripePoint;
+use stripe3d_core::triangulate::FullModel;
+
+fn main() {
+    divan::main();
+}
+
+fn frame() -> (FullModel, Vec<StripePoint>) {
+    let sensor = Sensor::default();
+    let model = FullModel::nominal(&sensor);
+    let mut pts = Vec::new();
+    for row in 0..480u32 {
+        for k in 0..11 {
+            if let Some(u) = model.column_at_height(k, f64::from(row), 10.0)
+                && (0.0..647.0).contains(&u)
+            {
+                pts.push(StripePoint {
+                    row,
+                    x: u,
+                    intensity: 150.0,
+                    width: 5.0,
+                    score: 1.0,
+                });
+            }
+        }
+    }
+    (model, pts)
+}
+
+#[divan::bench]
+fn code_frame(b: divan::Bencher) {
+    let (model, pts) = frame();
+    let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+    let mut out = Coding::default();
+    b.bench_local(|| {
+        coder.code_into(divan::black_box(&pts), &mut out);
+        out.stats.coded
+    });
+}
+
+#[divan::bench]
+fn triangulate_frame(b: divan::Bencher) {
+    let (model, pts) = frame();
+    let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+    let mut coding = Coding::default();
+    coder.code_into(&pts, &mut coding);
+    let mut p = Profile::default();
+    b.bench_local(|| {
+        profile_into(
+            0,
+            0.0,
+            divan::black_box(&pts),
+            &coding,
+            &model,
+            None,
+            ModelKind::Full,
+            &mut p,
+        );
+        p.points.len()
+    });
+}
+
+#[divan::bench]
+fn accumulate_frame(b: divan::Bencher) {
+    let (model, pts) = frame();
+    let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+    let mut coding = Coding::default();
+    coder.code_into(&pts, &mut coding);
+    // 20 frames 0.5 mm apart, accumulated together: the cost per frame is the total over 20.
+    let profiles: Vec<Profile> = (0..20)
+        .map(|k| {
+            let mut p = Profile::default();
+            profile_into(
+                k,
+                0.5 * k as f64,
+                &pts,
+                &coding,
+                &model,
+                None,
+                ModelKind::Full,
+                &mut p,
+            );
+            p
+        })
+        .collect();
+    let params = RangeParams {
+        spacing_mm: [0.22, 0.22],
+        ..RangeParams::default()
+    };
+    b.bench_local(|| {
+        let mut g = RangeGrid::covering(&profiles, params.clone()).expect("grid");
+        g.accumulate(divan::black_box(&profiles));
+        g.image().width
+    });
+}
