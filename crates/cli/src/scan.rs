@@ -16,7 +16,7 @@ use stripe3d_core::calibrate::{
     Calibration, CalibrationParams, PlaneImage, calibrate, check_camera,
 };
 use stripe3d_core::code::{Coding, CodingParams, CodingStats, StripeCoder};
-use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
+use stripe3d_core::extract::{Extraction, Extractor};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
@@ -87,12 +87,13 @@ pub struct ScanArgs {
 }
 
 fn extractor(method: &str) -> Result<Extractor> {
-    let method =
-        Method::from_name(method).with_context(|| format!("--method {method}: unknown"))?;
-    Ok(Extractor::new(ExtractParams {
+    use crate::extract::{AxisArg, PolicyArg, params};
+    Ok(Extractor::new(params(
         method,
-        ..ExtractParams::default()
-    })?)
+        None,
+        AxisArg::Rows,
+        PolicyArg::All,
+    )?)?)
 }
 
 fn extract_frame(ex: &mut Extractor, frame: &FrameData) -> Extraction {

@@ -161,14 +161,36 @@ impl RangeImage {
 
     /// Height at part coordinates (x, y), nearest cell; `None` outside the grid or where nothing was measured.
     pub fn at(&self, x_mm: f64, y_mm: f64) -> Option<f32> {
-        let i = ((x_mm - self.origin_mm[0]) / self.spacing_mm[0]).round();
-        let j = ((self.origin_mm[1] - y_mm) / self.spacing_mm[1]).round();
-        if i < 0.0 || j < 0.0 || i >= self.width as f64 || j >= self.height as f64 {
-            return None;
-        }
-        let z = self.z[j as usize * self.width + i as usize];
+        let k = cell_index(
+            self.origin_mm,
+            self.spacing_mm,
+            self.width,
+            self.height,
+            x_mm,
+            y_mm,
+        )?;
+        let z = self.z[k];
         z.is_finite().then_some(z)
     }
+}
+
+/// Index of the cell nearest to (x, y) in a grid laid out as [`RangeImage`] describes; `None` outside it.
+#[inline]
+fn cell_index(
+    origin: [f64; 2],
+    spacing: [f64; 2],
+    width: usize,
+    height: usize,
+    x: f64,
+    y: f64,
+) -> Option<usize> {
+    let i = ((x - origin[0]) / spacing[0]).round();
+    let j = ((origin[1] - y) / spacing[1]).round();
+    // NaN coordinates fail these comparisons too.
+    if !(i >= 0.0 && j >= 0.0 && i < width as f64 && j < height as f64) {
+        return None;
+    }
+    Some(j as usize * width + i as usize)
 }
 
 /// The grid a scan is accumulated on.
@@ -233,12 +255,16 @@ impl RangeGrid {
 
     #[inline]
     fn add(&mut self, x: f64, y: f64, z: f64) {
-        let i = ((x - self.origin[0]) / self.params.spacing_mm[0]).round();
-        let j = ((self.origin[1] - y) / self.params.spacing_mm[1]).round();
-        if i < 0.0 || j < 0.0 || i >= self.width as f64 || j >= self.height as f64 {
+        let Some(k) = cell_index(
+            self.origin,
+            self.params.spacing_mm,
+            self.width,
+            self.height,
+            x,
+            y,
+        ) else {
             return;
-        }
-        let k = j as usize * self.width + i as usize;
+        };
         self.sum[k] += z;
         self.count[k] += 1;
     }

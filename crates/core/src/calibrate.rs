@@ -299,8 +299,8 @@ pub fn calibrate(
     }
     // Anchor: the image identified most clearly by the nominal geometry.
     let heights: Vec<f64> = order.iter().map(|&i| images[i].height_mm).collect();
-    let mut firsts: Vec<Option<usize>> = vec![None; order.len()];
-    let mut anchor: Option<(usize, f64)> = None;
+    // (image, first label, how clearly it beats the next best first label)
+    let mut anchor: Option<(usize, usize, f64)> = None;
     for k in 0..order.len() {
         let z = heights[k];
         let fit = best_first(&lines[k], n, |s, l| {
@@ -312,18 +312,16 @@ pub fn calibrate(
             } else {
                 second / err.max(1e-9)
             };
-            if anchor.is_none_or(|(_, r)| ratio > r) {
-                anchor = Some((k, ratio));
-                firsts[k] = Some(first);
+            if anchor.is_none_or(|(_, _, r)| ratio > r) {
+                anchor = Some((k, first, ratio));
             }
         }
     }
-    let Some((a, _)) = anchor else {
+    let Some((a, first_a, _)) = anchor else {
         return Err(fail("no image could be matched to the sensor's stripes"));
     };
-    let keep = firsts[a];
-    firsts.iter_mut().for_each(|f| *f = None);
-    firsts[a] = keep;
+    let mut firsts: Vec<Option<usize>> = vec![None; order.len()];
+    firsts[a] = Some(first_a);
     // Propagate to the neighbours in height by continuity.
     let mut sequence: Vec<(usize, usize)> = (a + 1..order.len()).map(|k| (k - 1, k)).collect();
     sequence.extend((0..a).rev().map(|k| (k + 1, k)));
@@ -357,14 +355,14 @@ pub fn calibrate(
         firsts[to] = Some(first);
     }
     // Stripes must move the same way between every pair of heights (swapped images reverse them).
-    let direction = |k: usize, s: usize| -> Option<f64> {
+    let middle_column = |k: usize, s: usize| -> Option<f64> {
         let f = firsts[k]?;
         let line = lines[k].get(s.checked_sub(f)?)?;
         Some(line.column_near(rows / 2))
     };
     for s in 0..n {
         let cols: Vec<(usize, f64)> = (0..order.len())
-            .filter_map(|k| direction(k, s).map(|c| (k, c)))
+            .filter_map(|k| middle_column(k, s).map(|c| (k, c)))
             .collect();
         let nominal_dir = (nominal_column(&nominal, s, rows / 2, 10.0)
             - nominal_column(&nominal, s, rows / 2, 0.0))
@@ -410,7 +408,6 @@ pub fn calibrate(
                 .filter(|p| Some(p.0) != skip)
                 .map(|p| p.0)
                 .collect();
-            seen.dedup();
             seen.sort_unstable();
             seen.dedup();
             if seen.len() < 3 {

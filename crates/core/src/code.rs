@@ -400,7 +400,6 @@ struct SegmentState {
     /// Confident votes: up to four distinct labels with counts, plus the total.
     votes: [(u16, u32); 4],
     total_votes: u32,
-    open: bool,
     taken_row: u32,
 }
 
@@ -874,10 +873,7 @@ impl StripeCoder {
                             continue;
                         }
                         let s = self.segments.len() as u32;
-                        self.segments.push(SegmentState {
-                            open: true,
-                            ..SegmentState::default()
-                        });
+                        self.segments.push(SegmentState::default());
                         self.open.push(s);
                         s
                     }
@@ -899,9 +895,6 @@ impl StripeCoder {
                 }
                 self.state[idx].segment = s;
             }
-        }
-        for seg in &mut self.segments {
-            seg.open = false;
         }
     }
 
@@ -964,8 +957,6 @@ impl StripeCoder {
                     {
                         out.stripes[prev] = None;
                         out.stripes[idx] = None;
-                        self.state[idx].confident = false;
-                        self.state[prev].confident = false;
                         last = None;
                         continue;
                     }

@@ -185,10 +185,11 @@ pub fn calibration_from_str(path: &Path, text: &str) -> Result<Calibration, IoEr
         ..Default::default()
     };
     sensor.laser.stripes = n;
-    if let Err(e) = sensor.validate() {
-        if e.to_string().starts_with("camera.") {
-            return Err(invalid(path, "camera", e.to_string()));
-        }
+    // Only the camera is checked here: the laser of this throwaway sensor is the default one.
+    if let Err(e @ stripe3d_core::CoreError::InvalidSensor { field, .. }) = sensor.validate()
+        && field.starts_with("camera.")
+    {
+        return Err(invalid(path, "camera", e.to_string()));
     }
     Ok(Calibration {
         linear: LinearModel {
