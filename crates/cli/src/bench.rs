@@ -24,6 +24,25 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 8)]
         frames: usize,
     },
+    /// Defect detection against the simulator's truth: plates with random bumps, dents and holes, and clean
+    /// plates, scanned through the whole chain and inspected (Markdown table).
+    Defects {
+        /// Plates with defects.
+        #[arg(long, default_value_t = 100)]
+        parts: usize,
+        /// Clean plates (any defect reported on them is a false reject).
+        #[arg(long, default_value_t = 100)]
+        clean: usize,
+        /// Defects per defective plate.
+        #[arg(long, default_value_t = 4)]
+        defects: usize,
+        /// Seed of the random parts and renders.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// List every miss, wrong kind, out-of-tolerance measurement and false defect.
+        #[arg(long)]
+        verbose: bool,
+    },
     /// Extraction speed on your own frames: decodes them once, extracts for a few seconds.
     Throughput {
         /// Grey images (PNG, PGM, TIFF).
@@ -45,6 +64,13 @@ pub enum BenchCommand {
 pub fn run(cmd: &BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Accuracy { frames } => accuracy(*frames),
+        BenchCommand::Defects {
+            parts,
+            clean,
+            defects,
+            seed,
+            verbose,
+        } => crate::defects::bench_defects(*parts, *clean, *defects, *seed, *verbose),
         BenchCommand::Throughput {
             images,
             method,

@@ -1,8 +1,10 @@
 //! The `stripe3d` command: thin wiring of the library crates. See `stripe3d --help`.
 
 mod bench;
+mod defects;
 mod extract;
 mod fuzzy;
+mod inspect;
 mod scan;
 mod simulate;
 
@@ -34,6 +36,8 @@ enum Command {
     Calibrate(scan::CalibrateArgs),
     /// Turn a sequence of frames into the part's point cloud and range image.
     Scan(scan::ScanArgs),
+    /// Find, classify and measure the defects of a scanned part (bumps, dents, holes, scratches, edge chips).
+    Inspect(inspect::InspectArgs),
     /// Measure accuracy (against the simulator's ground truth) and speed.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -52,6 +56,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(cmd) => bench::run(&cmd),
         Command::Calibrate(args) => scan::run_calibrate(&args).map(|_| ()),
         Command::Scan(args) => scan::run_scan(&args).map(|_| ()),
+        Command::Inspect(args) => inspect::run_inspect(&args).map(|_| ()),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -9,14 +9,13 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use stripe3d_core::Sensor;
-use stripe3d_core::accumulate::{
-    ModelKind, Profile, RangeGrid, RangeImage, RangeParams, profile_into,
-};
+use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
 use stripe3d_core::calibrate::{
     Calibration, CalibrationParams, PlaneImage, calibrate, check_camera,
 };
-use stripe3d_core::code::{Coding, CodingParams, CodingStats, StripeCoder};
-use stripe3d_core::extract::{Extraction, Extractor};
+use stripe3d_core::code::{CodingParams, CodingStats};
+use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
+use stripe3d_core::scan::{Scanner, range_image};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
@@ -86,14 +85,13 @@ pub struct ScanArgs {
     pub range: Option<String>,
 }
 
-fn extractor(method: &str) -> Result<Extractor> {
+fn extract_params(method: &str) -> Result<ExtractParams> {
     use crate::extract::{AxisArg, PolicyArg, params};
-    Ok(Extractor::new(params(
-        method,
-        None,
-        AxisArg::Rows,
-        PolicyArg::All,
-    )?)?)
+    params(method, None, AxisArg::Rows, PolicyArg::All)
+}
+
+fn extractor(method: &str) -> Result<Extractor> {
+    Ok(Extractor::new(extract_params(method)?)?)
 }
 
 fn extract_frame(ex: &mut Extractor, frame: &FrameData) -> Extraction {
@@ -257,14 +255,8 @@ fn parse_range(s: &str) -> Result<(f64, f64)> {
     Ok((lo, hi))
 }
 
-/// The default measuring range for coding: the calibrated heights, widened.
-pub fn default_range(cal: &Calibration) -> (f64, f64) {
-    let (lo, hi) = cal.fitted_range_mm();
-    (lo - 1.0, hi + 0.25 * (hi - lo).max(4.0))
-}
-
 /// Travel (mm since frame 0) of each of `n` frames.
-fn travels(sensor: &Sensor, encoder: Option<&Path>, n: usize) -> Result<Vec<f64>> {
+pub fn travels(sensor: &Sensor, encoder: Option<&Path>, n: usize) -> Result<Vec<f64>> {
     if let Some(enc) = encoder {
         let t = crate::simulate::read_encoder(enc)?;
         if t.len() != n {
@@ -315,8 +307,7 @@ pub fn scan_frames(
         max_height_mm: range_mm.1,
         ..CodingParams::default()
     };
-    let coder = StripeCoder::new(&cal.full, w, h, coding_params)?;
-    extractor(method)?;
+    let scanner = Scanner::new(cal, extract_params(method)?, coding_params, model)?;
     let bar = ProgressBar::new(frames.len() as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames ({eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar())
@@ -328,8 +319,8 @@ pub fn scan_frames(
         .par_iter()
         .enumerate()
         .map_init(
-            || (extractor(method), coder.clone(), Coding::default()),
-            |(ex, coder, coding), (k, path)| {
+            || scanner.clone(),
+            |scanner, (k, path)| {
                 let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
                 let (fw, fh) = frame.size();
                 if (fw as u32, fh as u32) != (w, h) {
@@ -339,13 +330,13 @@ pub fn scan_frames(
                         path.display()
                     );
                 }
-                let ex = ex.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
-                let e = extract_frame(ex, &frame);
-                coder.code_into(&e.points, coding);
                 let mut p = Profile::default();
-                profile_into(k, travel[k], &e.points, coding, &cal.full, Some(&cal.linear), model, &mut p);
+                let stats = match &frame {
+                    FrameData::U8(img) => scanner.profile_into(img.view(), k, travel[k], cal, &mut p),
+                    FrameData::U16(img) => scanner.profile_into(img.view(), k, travel[k], cal, &mut p),
+                };
                 bar.inc(1);
-                Ok((p, coding.stats))
+                Ok((p, stats))
             },
         )
         .collect();
@@ -366,19 +357,8 @@ pub fn scan_frames(
             stats.points
         );
     }
-    let step = travel
-        .windows(2)
-        .map(|w| (w[1] - w[0]).abs())
-        .fold(0.0f64, f64::max);
-    let params = RangeParams {
-        spacing_mm: grid_mm,
-        max_fill_mm: (2.5 * step).max(grid_mm[0] * 1.5),
-        ..RangeParams::default()
-    };
-    let mut grid = RangeGrid::covering(&profiles, params)?;
-    grid.accumulate(&profiles);
     Ok(ScanResult {
-        range: grid.image(),
+        range: range_image(&profiles, grid_mm)?,
         profiles,
         coding: stats,
         seconds,
@@ -419,7 +399,7 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
     };
     let range_mm = match &args.range {
         Some(r) => parse_range(r)?,
-        None => default_range(&cal),
+        None => cal.coding_range_mm(),
     };
     let model = match args.model {
         ModelArg::Full => ModelKind::Full,

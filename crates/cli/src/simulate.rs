@@ -14,6 +14,10 @@ use stripe3d_io::truth::{STRIPES_CSV_HEADER, append_stripes_csv, write_defects, 
 use stripe3d_io::{read_scene, read_sensor, scene_to_toml, sensor_to_toml, write_atomic};
 use stripe3d_sim::{RenderOptions, Scene, Simulator};
 
+/// Frames rendered beyond one stripe pitch of travel by default, so the bands of neighbouring stripes overlap
+/// and the range image has no empty seams between them.
+const SWEEP_OVERLAP_FRAMES: usize = 2;
+
 /// Most frames one run renders.
 const MAX_FRAMES: usize = 100_000;
 
@@ -23,7 +27,7 @@ pub struct SimulateArgs {
     /// Built-in scene name (demo, plate, block, belt) or a scene TOML file.
     #[arg(long, default_value = "demo")]
     pub scene: String,
-    /// Number of frames [default: enough for the stripes to sweep one stripe pitch of the part].
+    /// Number of frames [default: enough for the stripes to sweep one stripe pitch of the part, and two more].
     #[arg(long)]
     pub frames: Option<usize>,
     /// File of conveyor positions in mm, one per frame (overrides --frames and the conveyor speed).
@@ -128,7 +132,9 @@ fn travels(args: &SimulateArgs, sensor: &Sensor) -> Result<Vec<f64>> {
         Some(0) => bail!("--frames 0: render at least one frame"),
         Some(n) if n > MAX_FRAMES => bail!("--frames {n}: at most {MAX_FRAMES}"),
         Some(n) => n,
-        None if step > 0.0 => ((sensor.laser.pitch_mm / step).ceil() as usize).clamp(1, 1000),
+        None if step > 0.0 => {
+            stripe3d_sim::pipeline::frames_for_sweep(sensor, SWEEP_OVERLAP_FRAMES).clamp(1, 1000)
+        }
         None => 1,
     };
     Ok((0..frames).map(|k| conveyor.travel_mm(k)).collect())
@@ -279,7 +285,10 @@ pub fn demo(out: &Path) -> Result<()> {
     println!("  sensor.toml, scene.toml, manifest.json");
     extract_demo(out, &sim_dir, s.frames)?;
     scan_demo(out, &sim_dir)?;
-    println!("next stages (inspection, verdict) will extend this demo as they land.");
+    inspect_demo(out, &sim_dir)?;
+    println!(
+        "next stage (the knowledge base: tolerances, diagnosis, learning) will extend this demo as it lands."
+    );
     Ok(())
 }
 
@@ -289,7 +298,7 @@ const DEMO_PLATES_MM: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 30.0, 35.0];
 /// The calibration and scanning stages of the demo: plate images at known heights, `calibrate`, then `scan` of the
 /// demo frames, with the range image compared to the true height map.
 fn scan_demo(out: &Path, sim_dir: &Path) -> Result<()> {
-    use crate::scan::{CalibrateArgs, ModelArg, ScanArgs, run_calibrate, run_scan};
+    use crate::scan::{CalibrateArgs, run_calibrate};
     let sensor_path = sim_dir.join("sensor.toml");
     let sensor = read_sensor(&sensor_path)?;
     let cal_dir = out.join("calibration");
@@ -318,23 +327,13 @@ fn scan_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         .collect::<Result<_>>()?;
     let calib = out.join("calib.toml");
     run_calibrate(&CalibrateArgs {
-        sensor: sensor_path.clone(),
+        sensor: sensor_path,
         planes,
         out: calib.clone(),
         method: "steger".into(),
     })?;
     let scan_dir = out.join("scan");
-    let res = run_scan(&ScanArgs {
-        sensor: sensor_path,
-        calib,
-        out: scan_dir,
-        frames: vec![sim_dir.join("frames")],
-        encoder: None,
-        grid_mm: None,
-        model: ModelArg::Full,
-        method: "steger".into(),
-        range: None,
-    })?;
+    let res = scan_simulation(sim_dir, &calib, &scan_dir)?;
     // Against the truth: every triangulated point whose true surface is smooth around it.
     let scene = load_scene("demo")?;
     let sim = Simulator::new(&sensor, &scene, RenderOptions::ideal())?;
@@ -359,6 +358,108 @@ fn scan_demo(out: &Path, sim_dir: &Path) -> Result<()> {
     println!(
         "against the true height map: RMS height error {:.4} mm over {n} points on smooth surfaces; {wrong} points more than 0.5 mm off (a wrong stripe index)",
         (sum / n.max(1) as f64).sqrt()
+    );
+    Ok(())
+}
+
+/// `stripe3d scan` of a simulation folder's frames with its sensor, the full model and the defaults.
+fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::scan::ScanResult> {
+    use crate::scan::{ModelArg, ScanArgs, run_scan};
+    run_scan(&ScanArgs {
+        sensor: sim_dir.join("sensor.toml"),
+        calib: calib.to_path_buf(),
+        out: out.to_path_buf(),
+        frames: vec![sim_dir.join("frames")],
+        encoder: None,
+        grid_mm: None,
+        model: ModelArg::Full,
+        method: "steger".into(),
+        range: None,
+    })
+}
+
+/// The inspection stage of the demo: a golden part (the demo part without its defects) is rendered and scanned,
+/// and the demo scan is inspected against it; the defects found are compared with the ones put in.
+fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
+    use crate::inspect::{InspectArgs, ShapeArg, run_inspect};
+    use stripe3d_sim::scene::Feature;
+    let mut golden = load_scene("demo")?;
+    golden.name = "demo-golden".into();
+    golden.features.retain(|f| {
+        !matches!(
+            f,
+            Feature::Bump { .. }
+                | Feature::Dent { .. }
+                | Feature::Hole {
+                    designed: false,
+                    ..
+                }
+        )
+    });
+    let golden_sim = out.join("golden/simulation");
+    println!("rendering a golden part (the demo part without its defects) for reference ...");
+    let golden_toml = out.join("golden/scene.toml");
+    prepare_dir(&out.join("golden"))?;
+    write_atomic(&golden_toml, scene_to_toml(&golden).as_bytes())?;
+    simulate(&SimulateArgs {
+        scene: golden_toml.display().to_string(),
+        frames: None,
+        encoder: None,
+        sensor: None,
+        out: golden_sim.clone(),
+        seed: 7,
+        bits: None,
+        supersample: 1,
+        no_noise: false,
+    })?;
+    let golden_scan = out.join("golden/scan");
+    scan_simulation(&golden_sim, &out.join("calib.toml"), &golden_scan)?;
+    println!("inspecting the demo scan against the golden scan ...");
+    let inspection = run_inspect(&InspectArgs {
+        sensor: None,
+        calib: None,
+        reference: Some(golden_scan),
+        product: None,
+        out: out.join("inspection"),
+        frames: vec![out.join("scan")],
+        shape: ShapeArg::Plane,
+        rules: None,
+        threshold_mm: stripe3d_core::detect::DetectParams::default().seed_mm,
+        encoder: None,
+        grid_mm: None,
+    })?;
+    let sensor = read_sensor(&sim_dir.join("sensor.toml"))?;
+    let truth = Simulator::new(&sensor, &load_scene("demo")?, RenderOptions::ideal())?
+        .defects()
+        .to_vec();
+    let found = &inspection.detection.defects;
+    let outcome = crate::defects::match_defects(&truth, found);
+    for m in &outcome.matches {
+        let t = &m.truth;
+        match &m.found {
+            Some(f) => println!(
+                "  truth {} at ({:.1}, {:.1}) mm, {:.2} mm: found as {} {:.2} mm off, depth {:.3} mm, area {:.1} vs {:.1} mm²",
+                t.kind,
+                t.x_mm,
+                t.y_mm,
+                t.depth_mm,
+                f.kind.name(),
+                (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm),
+                f.depth_mm,
+                f.area_mm2,
+                t.area_mm2
+            ),
+            None => println!(
+                "  truth {} at ({:.1}, {:.1}) mm: MISSED",
+                t.kind, t.x_mm, t.y_mm
+            ),
+        }
+    }
+    println!(
+        "against the truth: {} of {} defects found, {} reported that are not in the part",
+        outcome.matches.iter().filter(|m| m.found.is_some()).count(),
+        truth.len(),
+        outcome.false_defects.len()
     );
     Ok(())
 }

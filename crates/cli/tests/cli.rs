@@ -322,7 +322,7 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
 }
 
 #[test]
-fn demo_calibrates_and_scans_and_scan_refuses_bad_input() {
+fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = dir.path().join("demo");
     let o = stripe3d(&["demo", "--out", out.to_str().expect("utf8")]);
@@ -364,11 +364,11 @@ fn demo_calibrates_and_scans_and_scan_refuses_bad_input() {
     ]);
     assert!(!o.status.success());
     assert!(
-        stderr(&o).contains("2 positions for 20 frames"),
+        stderr(&o).contains("2 positions for 22 frames"),
         "{}",
         stderr(&o)
     );
-    let back: String = (0..20)
+    let back: String = (0..22)
         .map(|k| format!("{}\n", if k == 7 { 1.0 } else { 0.5 * k as f64 }))
         .collect();
     let enc = write(dir.path(), "back.txt", &back);
@@ -437,4 +437,106 @@ fn demo_calibrates_and_scans_and_scan_refuses_bad_input() {
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("HEIGHT_MM:IMAGE"), "{}", stderr(&o));
+    // The demo's inspection: report and pictures, the fields other tools read.
+    for f in [
+        "inspection/report.json",
+        "inspection/defects.png",
+        "inspection/deviation.png",
+        "golden/scan/range.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("inspection/report.json")).expect("report"),
+    )
+    .expect("json");
+    assert_eq!(report["status"], "inspected");
+    assert!(
+        ["accept", "reject", "incomplete"].contains(&report["verdict"].as_str().expect("verdict"))
+    );
+    let defects = report["defects"].as_array().expect("defects");
+    assert!(
+        !defects.is_empty(),
+        "the demo part has a bump, a dent and a hole"
+    );
+    for d in defects {
+        for k in [
+            "kind",
+            "x_mm",
+            "y_mm",
+            "area_mm2",
+            "depth_mm",
+            "volume_mm3",
+            "bbox_mm",
+            "confidence",
+        ] {
+            assert!(!d[k].is_null(), "{k} missing in {d}");
+        }
+    }
+    // The golden scan against itself: nothing deviates.
+    let insp = dir.path().join("self");
+    let golden = s("golden/scan");
+    let o = stripe3d(&[
+        "inspect",
+        "--reference",
+        &golden,
+        "--out",
+        insp.to_str().expect("utf8"),
+        &golden,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(insp.join("report.json")).expect("report"))
+            .expect("json");
+    assert_eq!(
+        report["defects"].as_array().map(Vec::len),
+        Some(0),
+        "{report}"
+    );
+    // Refusals: a product file (no knowledge base yet), frames without a calibration, a missing reference.
+    let o = stripe3d(&["inspect", "--product", "p.toml", "--out", &s("i1"), &golden]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("knowledge base"), "{}", stderr(&o));
+    let o = stripe3d(&["inspect", "--sensor", &sensor, "--out", &s("i2"), &frames]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--calib"), "{}", stderr(&o));
+    let o = stripe3d(&[
+        "inspect",
+        "--reference",
+        &s("nowhere"),
+        "--out",
+        &s("i3"),
+        &golden,
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("nowhere"), "{}", stderr(&o));
+    // A scan of the empty belt shows no part: the report says so and the exit is non-zero.
+    let belt = dir.path().join("belt");
+    let o = stripe3d(&[
+        "simulate",
+        "--scene",
+        "belt",
+        "--frames",
+        "3",
+        "--out",
+        belt.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = stripe3d(&[
+        "inspect",
+        "--sensor",
+        &sensor,
+        "--calib",
+        &calib,
+        "--out",
+        &s("i4"),
+        belt.join("frames").to_str().expect("utf8"),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no part"), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("i4/report.json")).expect("report"))
+            .expect("json");
+    assert_eq!(report["status"], "error");
+    assert_eq!(report["verdict"], "not-inspected");
 }

@@ -3,7 +3,8 @@
 //! A [`Profile`] is one frame's coded stripe points in millimetres, in part coordinates (belt coordinates with the
 //! conveyor travel since frame 0 subtracted, `DESIGN.md`). [`RangeGrid::accumulate`] resamples a scan's profiles
 //! onto a regular x-y grid: every point lands in its cell, and between the points of one stripe on one image row
-//! in consecutive frames (the same sheet sweeping the part) the surface is interpolated linearly when they are
+//! in consecutive frames (or with one frame missing between them; the same sheet sweeping the part) the surface is
+//! interpolated linearly when they are
 //! close (at most [`RangeParams::max_fill_mm`] apart along x and [`RangeParams::max_fill_step_mm`] apart in
 //! height), so that a grid finer than the travel per frame has no stripes of empty cells. Cells where nothing was
 //! measured are NaN.
@@ -104,6 +105,10 @@ pub fn profile_into(
         });
     }
 }
+
+/// Samples of one stripe and row at most this many frames apart are joined (when close enough): a frame in which
+/// coding dropped a whole stripe segment leaves no empty column behind.
+const MAX_FILL_FRAMES: usize = 2;
 
 /// Parameters of the range grid.
 #[derive(Debug, Clone, PartialEq)]
@@ -292,7 +297,8 @@ impl RangeGrid {
                 let key = usize::from(p.stripe) * rows + p.row as usize;
                 let (frame, x0, y0, z0) = last[key];
                 if frame != usize::MAX
-                    && frame + 1 == prof.frame
+                    && prof.frame > frame
+                    && prof.frame - frame <= MAX_FILL_FRAMES
                     && (p.x_mm - x0).abs() <= self.params.max_fill_mm
                     && (p.z_mm - z0).abs() <= self.params.max_fill_step_mm
                 {

@@ -97,6 +97,13 @@ impl Calibration {
             self.heights_mm.last().copied().unwrap_or(0.0),
         )
     }
+
+    /// The heights stripe coding allows by default: the calibrated range, 1 mm below and a quarter of its span
+    /// (at least 1 mm) above, where the calibrated planes still extrapolate well.
+    pub fn coding_range_mm(&self) -> (f64, f64) {
+        let (lo, hi) = self.fitted_range_mm();
+        (lo - 1.0, hi + 0.25 * (hi - lo).max(4.0))
+    }
 }
 
 fn fail(message: impl Into<String>) -> CoreError {

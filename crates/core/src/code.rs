@@ -67,6 +67,9 @@ pub struct CodingParams {
     /// Least share of a segment's points that must be confidently coded for the segment to vote at all: a long
     /// segment settled by a handful of its rows (typically at its ends, where the surface changes) is not trusted.
     pub min_voting_share: f64,
+    /// How much more a row labelling may cost with the segment's label than with the row's own best for the
+    /// segment's label to be taken (a stripe missing in a hole makes the row cheaper to read one stripe over).
+    pub segment_override_cost: f64,
     /// Largest column change (pixels) between linked points of consecutive rows of a segment.
     pub link_px: f64,
     /// Largest number of empty rows a segment may bridge.
@@ -98,6 +101,8 @@ impl Default for CodingParams {
             // Measured on the demo part: the step whose stripes are ambiguous in every row but its first few was
             // coded one stripe over by those few rows.
             min_voting_share: 0.25,
+            // One unexplained missing stripe (skip_cost) minus one jump (jump_cost) is 0.65: the hole case.
+            segment_override_cost: 0.7,
             link_px: 3.0,
             max_gap_rows: 40,
         }
@@ -125,6 +130,7 @@ impl CodingParams {
             ("jump_cost", self.jump_cost),
             ("outlier_cost", self.outlier_cost),
             ("margin", self.margin),
+            ("segment_override_cost", self.segment_override_cost),
             ("min_vote_share", self.min_vote_share),
             ("min_voting_share", self.min_voting_share),
             ("link_px", self.link_px),
@@ -383,6 +389,8 @@ struct PointState {
     /// Best label of the row labelling (even when not confident); `u16::MAX` for a declared-false point.
     best: u16,
     confident: bool,
+    /// The runner-up labels and how much more their best row labelling costs than the best label's.
+    alternatives: [(u16, f32); 2],
     z: f32,
     segment: u32,
 }
@@ -561,6 +569,7 @@ impl StripeCoder {
             PointState {
                 best: NO_LABEL,
                 confident: false,
+                alternatives: [(NO_LABEL, f32::INFINITY); 2],
                 z: f32::NAN,
                 segment: NO_SEGMENT,
             },
@@ -791,19 +800,25 @@ impl StripeCoder {
         let margin = self.params.margin as f32;
         for j in 0..m {
             let idx = self.order[start + j] as usize;
-            let (mut best, mut best_label, mut best_z, mut second) =
-                (f32::INFINITY, NO_LABEL, f32::NAN, f32::INFINITY);
+            let (mut best, mut best_label, mut best_z) = (f32::INFINITY, NO_LABEL, f32::NAN);
+            // Runner-up (cost, label) pairs, cheapest first.
+            let mut alt = [(f32::INFINITY, NO_LABEL); 2];
             for it in &self.items[self.row_start[j]..self.row_start[j + 1]] {
                 let c = it.forward + it.backward;
                 if c < best {
-                    second = best;
+                    alt[1] = alt[0];
+                    alt[0] = (best, best_label);
                     best = c;
                     best_label = it.label;
                     best_z = it.z;
-                } else if c < second {
-                    second = c;
+                } else if c < alt[0].0 {
+                    alt[1] = alt[0];
+                    alt[0] = (c, it.label);
+                } else if c < alt[1].0 {
+                    alt[1] = (c, it.label);
                 }
             }
+            let second = alt[0].0;
             let outlier = self.outlier_marginal[j];
             let st = &mut self.state[idx];
             if best_label == NO_LABEL || outlier + margin <= best {
@@ -813,6 +828,7 @@ impl StripeCoder {
                 st.best = best_label;
                 st.z = best_z;
                 st.confident = best + margin <= second.min(outlier);
+                st.alternatives = alt.map(|(c, l)| (l, c - best));
             }
         }
     }
@@ -926,7 +942,14 @@ impl StripeCoder {
                             // A point the row labelling would label otherwise (even without confidence) is
                             // not relabelled: where a stripe on one surface lines up with its neighbour on
                             // another, segments link across the jump.
-                            if st.best != w {
+                            // Unless the winner is nearly as good for this row: a stripe missing from the
+                            // middle of a row (it fell into a hole) lets the row be read one stripe over with a
+                            // single height jump, cheaper than the missing stripe; the segment, running on
+                            // above and below the hole, settles it.
+                            let near = st.alternatives.iter().any(|&(l, d)| {
+                                l == w && d <= self.params.segment_override_cost as f32
+                            });
+                            if st.best != w && !near {
                                 None
                             } else {
                                 let b = self.band_of(p.row, usize::from(w));

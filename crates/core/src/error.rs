@@ -63,4 +63,10 @@ pub enum CoreError {
         /// What is wrong and what to do.
         message: String,
     },
+    /// Inspection cannot judge the part (no part in the scan, a reference that does not fit it).
+    #[error("inspection: {message}")]
+    Inspection {
+        /// What is wrong and what to do.
+        message: String,
+    },
 }

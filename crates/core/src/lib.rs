@@ -13,11 +13,14 @@
 
 pub mod accumulate;
 pub mod calibrate;
+pub mod characterize;
 pub mod code;
+pub mod detect;
 pub mod error;
 pub mod extract;
 pub mod image;
 pub mod rules;
+pub mod scan;
 pub mod sensor;
 pub mod triangulate;
 

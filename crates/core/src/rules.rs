@@ -116,6 +116,8 @@ mod tests {
                     ("direction", d),
                     ("gap", 0.0),
                     ("height_similarity", 10.0),
+                    ("elongation", 1.0),
+                    ("edge_notch", 0.0),
                 ],
                 out,
             )
@@ -134,6 +136,8 @@ mod tests {
                     ("direction", 0.0),
                     ("gap", g),
                     ("height_similarity", s),
+                    ("elongation", 1.0),
+                    ("edge_notch", 0.0),
                 ],
                 "hole",
             )
@@ -144,5 +148,31 @@ mod tests {
             "different heights: an edge, not a hole"
         );
         assert!(hole(60.0, 0.05) < 0.4, "too large a gap");
+        assert!(hole(0.5, 0.05) < 0.4, "a few empty cells are not a hole");
+        // Beyond the paper: scratches and edge chips.
+        let e = |inputs: &[(&str, f64)], out| {
+            let mut all = vec![
+                ("curvature", 3.0),
+                ("direction", -1.0),
+                ("gap", 0.0),
+                ("height_similarity", 50.0),
+                ("elongation", 1.0),
+                ("edge_notch", 0.0),
+            ];
+            for (k, v) in inputs {
+                if let Some(x) = all.iter_mut().find(|x| x.0 == *k) {
+                    x.1 = *v;
+                }
+            }
+            eval(RuleBase::Surface, &all, out)
+        };
+        assert!(e(&[("elongation", 10.0)], "scratch") > 0.6);
+        assert!(
+            e(&[("elongation", 10.0), ("curvature", 0.2)], "dent") < 0.4,
+            "long: a scratch, not a dent"
+        );
+        assert!(e(&[("elongation", 1.2)], "scratch") < 0.4);
+        assert!(e(&[("edge_notch", 2.0), ("direction", 0.0)], "edge_chip") > 0.6);
+        assert!(e(&[("edge_notch", 0.2), ("direction", 0.0)], "edge_chip") < 0.4);
     }
 }

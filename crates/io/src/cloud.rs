@@ -66,11 +66,13 @@ pub fn write_range(
             message: format!("cannot encode: {e}"),
         })?;
     write_atomic(&dir.join("range.png"), &png)?;
+    // height_preview draws rows along +y bottom-up; range rows run along −y, so hand them over reversed.
+    let bottom_up: Vec<f32> = range.z.chunks(w).rev().flatten().copied().collect();
     write_rgb_png(
         &dir.join("range-colour.png"),
         w,
         h,
-        &height_preview(w, h, &range.z, lo, hi),
+        &height_preview(w, h, &bottom_up, lo, hi),
     )?;
     let mut doc = json!({
         "file": "range.tiff",

@@ -14,6 +14,7 @@ pub mod config;
 pub mod error;
 pub mod files;
 pub mod images;
+pub mod report;
 pub mod truth;
 
 pub use calib::{calibration_to_toml, read_calibration};

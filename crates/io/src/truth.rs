@@ -51,10 +51,16 @@ pub fn write_height_map(dir: &Path, field: &HeightField) -> Result<GridIndex, Io
         width: nx,
         height: ny,
         units: "mm",
-        layout: "float32 heights above the belt in part coordinates; column i is x = origin_x + i*spacing_x, \
-                 row j is y = origin_y + j*spacing_y (row 0 is the smallest y); the preview PNG shows +y up",
+        layout: if nx > 0 {
+            "float32 heights above the belt in part coordinates; column i is x = origin_x + i*spacing_x, \
+             row j is y = origin_y + j*spacing_y (row 0 is the smallest y); the preview PNG shows +y up"
+        } else {
+            "no part: the belt is flat at height 0 everywhere, so no heightmap.tiff is written"
+        },
     };
-    write_f32_tiff(&dir.join("heightmap.tiff"), nx, ny, field.heights())?;
+    if nx > 0 {
+        write_f32_tiff(&dir.join("heightmap.tiff"), nx, ny, field.heights())?;
+    }
     let json = serde_json::to_string_pretty(&index).unwrap_or_default();
     write_atomic(&dir.join("heightmap.json"), json.as_bytes())?;
     if nx > 0 {

@@ -15,6 +15,7 @@
 
 pub mod evaluate;
 pub mod heightfield;
+pub mod pipeline;
 pub mod render;
 pub mod scene;
 

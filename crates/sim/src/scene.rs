@@ -12,6 +12,12 @@ use serde::{Deserialize, Serialize};
 pub const DEFAULT_GRID_MM: f64 = 0.05;
 /// Largest number of grid nodes a scene may rasterise to (memory guard against mistyped sizes).
 pub const MAX_GRID_NODES: usize = 40_000_000;
+/// Diameters of [`Scene::defect_plate`]'s defects, mm.
+pub const RANDOM_DIAMETER_MM: (f64, f64) = (2.0, 10.0);
+/// Heights and depths of [`Scene::defect_plate`]'s bumps and dents, mm.
+pub const RANDOM_DEPTH_MM: (f64, f64) = (0.1, 1.0);
+/// Largest height (or depth) over diameter of [`Scene::defect_plate`]'s bumps and dents.
+pub const RANDOM_MAX_SLOPE: f64 = 0.1;
 /// Empty belt kept around the part in the grid, mm.
 const GRID_MARGIN_MM: f64 = 2.0;
 
@@ -396,6 +402,61 @@ impl Scene {
             plate: None,
             features: vec![],
         }
+    }
+
+    /// The flat 80 x 60 x 10 mm plate with `defects` random bumps, dents and through-holes (a third of each on
+    /// average), drawn from `seed`: diameters [`RANDOM_DIAMETER_MM`], bump heights and dent depths
+    /// [`RANDOM_DEPTH_MM`] but at most [`RANDOM_MAX_SLOPE`] times the diameter (dents from handling and die debris
+    /// are shallow), centres at least 3 mm from the plate's edges and defects at least 3 mm apart. The defect
+    /// benchmark and the detection tests inspect these.
+    pub fn defect_plate(seed: u64, defects: usize) -> Scene {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut scene = Scene::flat_plate();
+        scene.name = format!("defect-plate-{seed}");
+        let (hx, hy) = (40.0, 30.0);
+        let mut placed: Vec<(f64, f64, f64)> = Vec::new();
+        let mut attempts = 0;
+        while placed.len() < defects && attempts < 10_000 {
+            attempts += 1;
+            let d = rng.random_range(RANDOM_DIAMETER_MM.0..=RANDOM_DIAMETER_MM.1);
+            let r = d / 2.0;
+            let x = rng.random_range(-hx + 3.0 + r..=hx - 3.0 - r);
+            let y = rng.random_range(-hy + 3.0 + r..=hy - 3.0 - r);
+            if placed
+                .iter()
+                .any(|&(px, py, pr)| (px - x).hypot(py - y) < pr + r + 3.0)
+            {
+                continue;
+            }
+            let depth = rng
+                .random_range(RANDOM_DEPTH_MM.0..=RANDOM_DEPTH_MM.1)
+                .min(RANDOM_MAX_SLOPE * d)
+                .max(RANDOM_DEPTH_MM.0);
+            let feature = match rng.random_range(0..3) {
+                0 => Feature::Bump {
+                    x_mm: x,
+                    y_mm: y,
+                    diameter_mm: d,
+                    height_mm: depth,
+                },
+                1 => Feature::Dent {
+                    x_mm: x,
+                    y_mm: y,
+                    diameter_mm: d,
+                    depth_mm: depth,
+                },
+                _ => Feature::Hole {
+                    x_mm: x,
+                    y_mm: y,
+                    diameter_mm: d,
+                    designed: false,
+                },
+            };
+            scene.features.push(feature);
+            placed.push((x, y, r));
+        }
+        scene
     }
 
     /// Checks every number of the scene; the error names the field (`feature[3].diameter_mm`).

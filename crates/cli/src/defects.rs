@@ -1,0 +1,366 @@
+//! `stripe3d bench defects`: simulated plates with random bumps, dents and holes, scanned through the whole chain
+//! and inspected, scored against the simulator's defect truth; and clean plates that must come out clean.
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use stripe3d_core::Sensor;
+use stripe3d_core::accumulate::RangeImage;
+use stripe3d_core::calibrate::Calibration;
+use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
+use stripe3d_core::detect::{Defect, DetectParams, SurfaceRules, inspect};
+use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scan_scene};
+use stripe3d_sim::{DefectTruth, RenderOptions, Scene};
+
+/// Targets of the defect-detection issue.
+const TARGET_RECALL: f64 = 0.99;
+const TARGET_PRECISION: f64 = 0.99;
+const TARGET_KIND: f64 = 0.98;
+const TARGET_CENTROID_MM: f64 = 0.5;
+const TARGET_AREA: f64 = 0.15;
+const TARGET_DEPTH_MM: f64 = 0.03;
+
+/// One truth defect and what was found for it.
+#[derive(Debug, Clone)]
+pub struct Match {
+    /// The truth.
+    pub truth: DefectTruth,
+    /// The found defect matched to it.
+    pub found: Option<Defect>,
+}
+
+/// The outcome on one part.
+#[derive(Debug, Clone, Default)]
+pub struct PartOutcome {
+    /// Truth defects with their matches.
+    pub matches: Vec<Match>,
+    /// Found defects that match no truth.
+    pub false_defects: Vec<Defect>,
+    /// Inspection warnings.
+    pub warnings: Vec<String>,
+}
+
+/// Matches found defects to the truth: nearest first, within the truth's radius (at least 1 mm), one to one.
+pub fn match_defects(truth: &[DefectTruth], found: &[Defect]) -> PartOutcome {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (ti, t) in truth.iter().enumerate() {
+        for (fi, f) in found.iter().enumerate() {
+            let d = (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm);
+            if d <= (t.diameter_mm / 2.0).max(1.0) {
+                pairs.push((d, ti, fi));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut t_used = vec![None; truth.len()];
+    let mut f_used = vec![false; found.len()];
+    for (_, ti, fi) in pairs {
+        if t_used[ti].is_none() && !f_used[fi] {
+            t_used[ti] = Some(fi);
+            f_used[fi] = true;
+        }
+    }
+    PartOutcome {
+        matches: truth
+            .iter()
+            .zip(&t_used)
+            .map(|(t, f)| Match {
+                truth: t.clone(),
+                found: f.map(|k| found[k].clone()),
+            })
+            .collect(),
+        false_defects: found
+            .iter()
+            .zip(&f_used)
+            .filter(|(_, u)| !**u)
+            .map(|(f, _)| f.clone())
+            .collect(),
+        warnings: Vec::new(),
+    }
+}
+
+/// Inspects a range image of a plate against a fitted plane with the shipped rules and default parameters.
+pub fn inspect_plate(range: &RangeImage) -> Result<(Vec<Defect>, Vec<String>)> {
+    let mut rules = SurfaceRules::shipped()?;
+    let i = inspect(
+        range,
+        ReferenceSource::Fit(ReferenceShape::Plane),
+        &CharacterizeParams::default(),
+        &mut rules,
+        &DetectParams::default(),
+    )?;
+    Ok((i.detection.defects, i.detection.warnings))
+}
+
+fn scan_and_inspect(
+    sensor: &Sensor,
+    cal: &Calibration,
+    scene: &Scene,
+    seed: u64,
+    frames: usize,
+    grid: [f64; 2],
+) -> Result<PartOutcome> {
+    let opts = RenderOptions {
+        seed,
+        ..RenderOptions::default()
+    };
+    let scan = scan_scene(sensor, cal, scene, frames, opts, grid)
+        .with_context(|| format!("scanning {}", scene.name))?;
+    let (found, warnings) =
+        inspect_plate(&scan.range).with_context(|| format!("inspecting {}", scene.name))?;
+    let mut out = match_defects(scan.simulator.defects(), &found);
+    out.warnings = warnings;
+    Ok(out)
+}
+
+fn pct(a: usize, b: usize) -> f64 {
+    100.0 * a as f64 / b.max(1) as f64
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Runs `stripe3d bench defects`.
+pub fn bench_defects(
+    parts: usize,
+    clean: usize,
+    per_part: usize,
+    seed: u64,
+    verbose: bool,
+) -> Result<()> {
+    if parts == 0 && clean == 0 {
+        bail!("--parts 0 --clean 0: nothing to measure");
+    }
+    if per_part == 0 || per_part > 12 {
+        bail!(
+            "--defects {per_part}: give 1 to 12 defects per part (they must fit 3 mm apart on an 80 x 60 mm plate)"
+        );
+    }
+    let sensor = Sensor::default();
+    println!("calibrating the simulated sensor (plates at 0-35 mm) ...");
+    let cal = calibrate_sensor(&sensor, seed.wrapping_add(10_000))?;
+    let frames = frames_for_sweep(&sensor, 2);
+    let grid = crate::scan::default_grid(&sensor);
+    let jobs: Vec<(bool, u64)> = (0..parts as u64)
+        .map(|i| (true, seed.wrapping_add(i)))
+        .chain((0..clean as u64).map(|i| (false, seed.wrapping_add(1_000_000 + i))))
+        .collect();
+    let bar = ProgressBar::new(jobs.len() as u64).with_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} parts ({eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message(format!("scanning and inspecting ({frames} frames a part)"));
+    let started = std::time::Instant::now();
+    let outcomes: Vec<Result<(bool, String, PartOutcome)>> = jobs
+        .par_iter()
+        .map(|&(defective, s)| {
+            let scene = if defective {
+                Scene::defect_plate(s, per_part)
+            } else {
+                Scene::flat_plate()
+            };
+            let r = scan_and_inspect(&sensor, &cal, &scene, s, frames, grid)
+                .map(|o| (defective, format!("{} (render seed {s})", scene.name), o));
+            bar.inc(1);
+            r
+        })
+        .collect();
+    bar.finish_and_clear();
+    let seconds = started.elapsed().as_secs_f64();
+    let mut all: Vec<(bool, String, PartOutcome)> = Vec::new();
+    for o in outcomes {
+        all.push(o?);
+    }
+    // Figures.
+    let matches: Vec<&Match> = all
+        .iter()
+        .filter(|a| a.0)
+        .flat_map(|a| &a.2.matches)
+        .collect();
+    let found_on_defective: usize = all
+        .iter()
+        .filter(|a| a.0)
+        .map(|a| a.2.matches.iter().filter(|m| m.found.is_some()).count() + a.2.false_defects.len())
+        .sum();
+    let false_on_defective: usize = all
+        .iter()
+        .filter(|a| a.0)
+        .map(|a| a.2.false_defects.len())
+        .sum();
+    let hit: Vec<(&DefectTruth, &Defect)> = matches
+        .iter()
+        .filter_map(|m| m.found.as_ref().map(|f| (&m.truth, f)))
+        .collect();
+    let kind_ok = hit.iter().filter(|(t, f)| f.kind.name() == t.kind).count();
+    let centroid: Vec<f64> = hit
+        .iter()
+        .map(|(t, f)| (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm))
+        .collect();
+    let area: Vec<f64> = hit
+        .iter()
+        .map(|(t, f)| (f.area_mm2 - t.area_mm2) / t.area_mm2)
+        .collect();
+    let depth: Vec<f64> = hit.iter().map(|(t, f)| f.depth_mm - t.depth_mm).collect();
+    let clean_runs: Vec<&(bool, String, PartOutcome)> = all.iter().filter(|a| !a.0).collect();
+    let clean_false: usize = clean_runs.iter().map(|a| a.2.false_defects.len()).sum();
+    let clean_rejected = clean_runs
+        .iter()
+        .filter(|a| !a.2.false_defects.is_empty())
+        .count();
+    let within = |v: &[f64], lim: f64| v.iter().filter(|e| e.abs() <= lim).count();
+    let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
+    println!(
+        "\n{} defective plates ({} defects each, {} in all) and {} clean plates, {} frames each, scanned and inspected in \
+         {seconds:.0} s on {} threads\n",
+        parts,
+        per_part,
+        matches.len(),
+        clean,
+        frames,
+        rayon::current_num_threads()
+    );
+    println!("| figure | measured | target | |");
+    println!("|---|---|---|---|");
+    let recall = hit.len() as f64 / matches.len().max(1) as f64;
+    let precision = hit.len() as f64 / found_on_defective.max(1) as f64;
+    let kind = kind_ok as f64 / hit.len().max(1) as f64;
+    println!(
+        "| recall | {:.2}% ({} of {}) | >= 99% | {} |",
+        100.0 * recall,
+        hit.len(),
+        matches.len(),
+        verdict(recall >= TARGET_RECALL)
+    );
+    println!(
+        "| precision | {:.2}% ({} false of {} reported) | >= 99% | {} |",
+        100.0 * precision,
+        false_on_defective,
+        found_on_defective,
+        verdict(precision >= TARGET_PRECISION)
+    );
+    println!(
+        "| kind correct | {:.2}% ({} of {}) | >= 98% | {} |",
+        100.0 * kind,
+        kind_ok,
+        hit.len(),
+        verdict(kind >= TARGET_KIND)
+    );
+    let (mut c, mut a, mut d) = (
+        centroid.clone(),
+        area.iter().map(|v| v.abs()).collect::<Vec<_>>(),
+        depth.iter().map(|v| v.abs()).collect::<Vec<_>>(),
+    );
+    let c_ok = within(&centroid, TARGET_CENTROID_MM);
+    println!(
+        "| centroid within 0.5 mm | {:.2}% (median {:.3} mm, 95% {:.3}, max {:.3}) | all | {} |",
+        pct(c_ok, hit.len()),
+        percentile(&mut c, 0.5),
+        percentile(&mut c, 0.95),
+        percentile(&mut c, 1.0),
+        verdict(c_ok == hit.len())
+    );
+    let a_ok = within(&area, TARGET_AREA);
+    println!(
+        "| area within 15% | {:.2}% (median {:.1}%, 95% {:.1}%, max {:.1}%) | all | {} |",
+        pct(a_ok, hit.len()),
+        100.0 * percentile(&mut a, 0.5),
+        100.0 * percentile(&mut a, 0.95),
+        100.0 * percentile(&mut a, 1.0),
+        verdict(a_ok == hit.len())
+    );
+    let d_ok = within(&depth, TARGET_DEPTH_MM);
+    println!(
+        "| depth within 0.03 mm | {:.2}% (median {:.4} mm, 95% {:.4}, max {:.4}) | all | {} |",
+        pct(d_ok, hit.len()),
+        percentile(&mut d, 0.5),
+        percentile(&mut d, 0.95),
+        percentile(&mut d, 1.0),
+        verdict(d_ok == hit.len())
+    );
+    println!(
+        "| false defects on clean plates | {clean_false} on {clean_rejected} of {} plates | 0 | {} |",
+        clean_runs.len(),
+        verdict(clean_false == 0)
+    );
+    println!(
+        "\n| kind | truth | found | kind right | centroid err median (mm) | area err median | depth err median (mm) |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for k in ["bump", "dent", "hole"] {
+        let ms: Vec<&&Match> = matches.iter().filter(|m| m.truth.kind == k).collect();
+        let hs: Vec<(&DefectTruth, &Defect)> = ms
+            .iter()
+            .filter_map(|m| m.found.as_ref().map(|f| (&m.truth, f)))
+            .collect();
+        let mut ce: Vec<f64> = hs
+            .iter()
+            .map(|(t, f)| (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm))
+            .collect();
+        let mut ae: Vec<f64> = hs
+            .iter()
+            .map(|(t, f)| ((f.area_mm2 - t.area_mm2) / t.area_mm2).abs())
+            .collect();
+        let mut de: Vec<f64> = hs
+            .iter()
+            .map(|(t, f)| (f.depth_mm - t.depth_mm).abs())
+            .collect();
+        println!(
+            "| {k} | {} | {} | {} | {:.3} | {:.1}% | {:.4} |",
+            ms.len(),
+            hs.len(),
+            hs.iter().filter(|(t, f)| f.kind.name() == t.kind).count(),
+            percentile(&mut ce, 0.5),
+            100.0 * percentile(&mut ae, 0.5),
+            percentile(&mut de, 0.5)
+        );
+    }
+    if verbose {
+        println!("\nmisses, wrong kinds, out-of-tolerance measurements and false defects:");
+        for (_, name, o) in &all {
+            for m in &o.matches {
+                let t = &m.truth;
+                let line = match &m.found {
+                    None => Some("MISSED".to_string()),
+                    Some(f) => {
+                        let ce = (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm);
+                        let ae = (f.area_mm2 - t.area_mm2) / t.area_mm2;
+                        let de = f.depth_mm - t.depth_mm;
+                        (f.kind.name() != t.kind || ce > TARGET_CENTROID_MM || ae.abs() > TARGET_AREA || de.abs() > TARGET_DEPTH_MM)
+                            .then(|| format!(
+                                "found {} ({:.2}) centroid err {ce:.3} mm, area {:.2} mm² ({:+.1}%), depth {:.3} mm ({de:+.4}); evidence {:?}",
+                                f.kind.name(), f.confidence, f.area_mm2, 100.0 * ae, f.depth_mm, f.evidence
+                            ))
+                    }
+                };
+                if let Some(l) = line {
+                    println!(
+                        "  {name}: {} d={:.2} mm depth {:.3} mm at ({:.1}, {:.1}): {l}",
+                        t.kind, t.diameter_mm, t.depth_mm, t.x_mm, t.y_mm
+                    );
+                }
+            }
+            for f in &o.false_defects {
+                println!(
+                    "  {name}: FALSE {} ({:.2}) at ({:.1}, {:.1}) area {:.2} mm² depth {:.3} mm; evidence {:?}",
+                    f.kind.name(),
+                    f.confidence,
+                    f.centroid_mm[0],
+                    f.centroid_mm[1],
+                    f.area_mm2,
+                    f.depth_mm,
+                    f.evidence
+                );
+            }
+            for w in &o.warnings {
+                println!("  {name}: warning: {w}");
+            }
+        }
+    }
+    Ok(())
+}

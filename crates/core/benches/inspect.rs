@@ -1,0 +1,66 @@
+//! Inspection of an 80 x 60 mm part's range image at a 0.1 mm grid (801 x 601 cells, plus 2 mm of belt around):
+//! outlier removal, robust reference fit, characterization maps (deviation, normals, curvature), segmentation,
+//! fuzzy classification and measurement of four defects (a bump, a dent, a hole and a scratch). Target (#6):
+//! <= 50 ms on one core.
+
+use stripe3d_core::accumulate::RangeImage;
+use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
+use stripe3d_core::detect::{DetectParams, SurfaceRules, bell, inspect};
+
+fn main() {
+    divan::main();
+}
+
+fn part() -> RangeImage {
+    let (w, h) = (841, 641);
+    let mut r = RangeImage {
+        origin_mm: [-42.0, 32.0],
+        spacing_mm: [0.1, 0.1],
+        width: w,
+        height: h,
+        z: vec![0.0; w * h],
+    };
+    for j in 0..h {
+        for i in 0..w {
+            let (x, y) = (-42.0 + i as f64 * 0.1, 32.0 - j as f64 * 0.1);
+            // Deterministic noise of about 0.007 mm.
+            let n = (((i * 7919 + j * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.024;
+            let z = if x.abs() > 40.0 || y.abs() > 30.0 {
+                n.abs()
+            } else if (x - 10.0).hypot(y + 10.0) < 2.0 {
+                f64::NAN
+            } else {
+                10.0 + 0.3 * bell((x + 20.0).hypot(y - 10.0), 3.0)
+                    - 0.2 * bell((x - 15.0).hypot(y - 12.0), 2.5)
+                    - if (y + 20.0).abs() < 0.3 && x.abs() < 10.0 {
+                        0.2
+                    } else {
+                        0.0
+                    }
+                    + n
+            };
+            r.z[j * w + i] = z as f32;
+        }
+    }
+    r
+}
+
+#[divan::bench]
+fn inspect_80x60mm_at_0_1mm(b: divan::Bencher) {
+    let r = part();
+    let mut rules = SurfaceRules::shipped().expect("rules");
+    let cp = CharacterizeParams::default();
+    let dp = DetectParams::default();
+    b.bench_local(|| {
+        let i = inspect(
+            &r,
+            ReferenceSource::Fit(ReferenceShape::Plane),
+            &cp,
+            &mut rules,
+            &dp,
+        )
+        .expect("inspect");
+        assert_eq!(i.detection.defects.len(), 4, "{:?}", i.detection.defects);
+        divan::black_box(i)
+    });
+}

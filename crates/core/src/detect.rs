@@ -1,0 +1,1396 @@
+//! Defect detection: regions of the characterization maps that deviate, gaps in the data, and material missing
+//! from the part's outline, classified by the paper's surface rules (`rules/surface.fll`, through the fuzzy engine)
+//! and measured.
+//!
+//! 1. **The part** is the largest 8-connected set of cells above the belt; specks elsewhere are not the part.
+//! 2. **Deviating regions**: seeds where the 3 x 3 smoothed deviation exceeds [`DetectParams::seed_mm`] (not within
+//!    [`DetectParams::edge_band_mm`] of the part's edge, where half-lit stripes bias heights), grown over cells of
+//!    the same sign above [`DetectParams::grow_mm`] (hysteresis).
+//! 3. **Gaps**: regions without part data enclosed by the part, where the reference expects surface.
+//! 4. **Edge chips**: cells inside the expected outline (the convex hull of the part, cut to where the reference
+//!    expects surface) that are not the part and are open to the outside.
+//! 5. Each candidate's evidence (largest |mean curvature|, direction uniformity, gap size, height similarity across
+//!    the gap, elongation, notch depth) goes through the rule base; the most certain output names the kind, its
+//!    certainty is the confidence; below 0.5 the kind is `anomaly`.
+//! 6. **Measurement**: bumps and dents are fitted with a smooth bell (raised cosine, least squares with an offset,
+//!    Levenberg-Marquardt), which gives the footprint (area), centre and height free of the detection threshold; the
+//!    volume sums the measured deviation over the footprint. Holes, chips and scratches are measured from their
+//!    cells; a hole's depth is down to the belt when its bottom is not seen (the part lies on the belt).
+
+use crate::CoreError;
+use crate::accumulate::RangeImage;
+use crate::characterize::{
+    CellClass, CharacterizeParams, ReferenceInfo, ReferenceSource, SurfaceMaps, cell_xy,
+    geometry_at, median, reference_heights, remove_outliers, surface_maps,
+};
+use crate::rules::RuleBase;
+use std::collections::VecDeque;
+use stripe3d_fuzzy::Engine;
+
+/// The kinds of defect.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum DefectKind {
+    /// Material raised above the surface, smooth.
+    Bump,
+    /// Material pressed below the surface, smooth.
+    Dent,
+    /// A gap in the surface with similar heights around it.
+    Hole,
+    /// A long, narrow groove.
+    Scratch,
+    /// Material missing from the part's outline.
+    EdgeChip,
+    /// A deviation the rules could not name with certainty.
+    Anomaly,
+}
+
+impl DefectKind {
+    /// Every kind.
+    pub const ALL: [DefectKind; 6] = [
+        DefectKind::Bump,
+        DefectKind::Dent,
+        DefectKind::Hole,
+        DefectKind::Scratch,
+        DefectKind::EdgeChip,
+        DefectKind::Anomaly,
+    ];
+
+    /// The name in reports: `bump`, `dent`, `hole`, `scratch`, `edge-chip`, `anomaly`.
+    pub fn name(self) -> &'static str {
+        match self {
+            DefectKind::Bump => "bump",
+            DefectKind::Dent => "dent",
+            DefectKind::Hole => "hole",
+            DefectKind::Scratch => "scratch",
+            DefectKind::EdgeChip => "edge-chip",
+            DefectKind::Anomaly => "anomaly",
+        }
+    }
+
+    /// The kind of a report name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
+/// What the rules were told about a candidate.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Evidence {
+    /// Largest |mean curvature| in the region, 1/mm.
+    pub curvature_per_mm: f64,
+    /// Signed uniformity of the deviation: −1 all downward, +1 all upward.
+    pub direction: f64,
+    /// Equivalent diameter of a gap in the data, mm (0 for surface regions).
+    pub gap_mm: f64,
+    /// Height difference between the two sides of a gap, mm.
+    pub height_similarity_mm: f64,
+    /// Length over width (1 for round).
+    pub elongation: f64,
+    /// How far missing material reaches into the outline, mm.
+    pub edge_notch_mm: f64,
+    /// Cells of the region.
+    pub cells: usize,
+}
+
+/// One defect, located and measured (part coordinates).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Defect {
+    /// What it is.
+    pub kind: DefectKind,
+    /// Centre, mm.
+    pub centroid_mm: [f64; 2],
+    /// Bounding box x0, y0, x1, y1, mm.
+    pub bbox_mm: [f64; 4],
+    /// Footprint area, mm².
+    pub area_mm2: f64,
+    /// Greatest height (bump) or depth (the others) relative to the reference, mm.
+    pub depth_mm: f64,
+    /// Material added or removed, mm³.
+    pub volume_mm3: f64,
+    /// Certainty of the kind, 0 to 1 (the rule base's output).
+    pub confidence: f64,
+    /// Whether a hole's bottom was seen (false: assumed through to the belt).
+    pub bottom_seen: bool,
+    /// The evidence the rules weighed.
+    pub evidence: Evidence,
+}
+
+/// A region the scan could not measure and that is not a hole (a shadow, an occlusion): reported so that "no
+/// defect" never silently covers unmeasured surface.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unmeasured {
+    /// Centre, mm.
+    pub centroid_mm: [f64; 2],
+    /// Area, mm².
+    pub area_mm2: f64,
+    /// Why it is not a hole.
+    pub reason: String,
+}
+
+/// Parameters of detection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectParams {
+    /// Smoothed deviation that starts a region, mm. Half the smallest defect of interest (0.1 mm); 20 times the
+    /// smoothed height noise of the default set-up (about 0.0025 mm), so clean plates stay clean.
+    pub seed_mm: f64,
+    /// Smoothed deviation a region grows over, mm.
+    pub grow_mm: f64,
+    /// Smallest region reported, mm².
+    pub min_area_mm2: f64,
+    /// Smallest gap considered, mm² (scattered empty cells are not holes).
+    pub min_gap_mm2: f64,
+    /// Band along the part's edges (and the rims of holes) where regions are not seeded, mm: half-lit stripes
+    /// there are biased by up to 0.4 mm, and the grid carries the bias about one frame step (0.5 mm) inward
+    /// (measured at hole rims on the defect benchmark).
+    pub edge_band_mm: f64,
+    /// Cells this far (mm) from the median of their 5 x 5 neighbourhood are outliers (see
+    /// [`crate::characterize::remove_outliers`]): a stripe coded one index off lands 1.3 mm or more away, while the
+    /// mixed cells on the rim of a hole (top and wall samples averaged) stay within 1 mm and keep holes their size
+    /// (0.5 mm cost 6% of the holes their 15% area tolerance on the defect benchmark).
+    pub outlier_mm: f64,
+    /// Anomalies (regions the rules cannot name) smaller than this are reported as unmeasured outlier heights,
+    /// mm²: a wrongly coded stripe fragment gives a few cells millimetres off.
+    pub min_anomaly_mm2: f64,
+    /// Least share of an edge notch's cells that must show the belt for it to be missing material.
+    pub min_seen_share: f64,
+    /// Certainty below which a candidate is an `anomaly`.
+    pub min_confidence: f64,
+    /// Most candidates evaluated (a guard against a wildly wrong reference).
+    pub max_candidates: usize,
+}
+
+impl Default for DetectParams {
+    fn default() -> Self {
+        Self {
+            seed_mm: 0.05,
+            grow_mm: 0.02,
+            min_area_mm2: 0.5,
+            min_gap_mm2: 0.8,
+            edge_band_mm: 1.0,
+            outlier_mm: 1.0,
+            min_anomaly_mm2: 2.0,
+            min_seen_share: 0.3,
+            min_confidence: 0.5,
+            max_candidates: 500,
+        }
+    }
+}
+
+/// The surface rule base, ready to evaluate.
+#[derive(Debug, Clone)]
+pub struct SurfaceRules {
+    engine: Engine,
+    inputs: [usize; 6],
+    outputs: [(usize, DefectKind); 5],
+}
+
+fn rule_error(e: impl ToString) -> CoreError {
+    CoreError::RuleBase {
+        file: RuleBase::Surface.file_name(),
+        message: e.to_string(),
+    }
+}
+
+impl SurfaceRules {
+    /// The shipped rule base.
+    pub fn shipped() -> Result<Self, CoreError> {
+        Self::from_engine(RuleBase::Surface.engine().map_err(rule_error)?)
+    }
+
+    /// A surface engine (inputs `curvature`, `direction`, `gap`, `height_similarity`, `elongation`, `edge_notch`;
+    /// outputs `bump`, `dent`, `hole`, `scratch`, `edge_chip`), e.g. one tuned from operators' feedback.
+    pub fn from_engine(engine: Engine) -> Result<Self, CoreError> {
+        let input = |name: &str| {
+            engine
+                .input_index(name)
+                .ok_or_else(|| rule_error(format!("no input variable `{name}`")))
+        };
+        let output = |name: &str| {
+            engine
+                .output_index(name)
+                .ok_or_else(|| rule_error(format!("no output variable `{name}`")))
+        };
+        let inputs = [
+            input("curvature")?,
+            input("direction")?,
+            input("gap")?,
+            input("height_similarity")?,
+            input("elongation")?,
+            input("edge_notch")?,
+        ];
+        let outputs = [
+            (output("bump")?, DefectKind::Bump),
+            (output("dent")?, DefectKind::Dent),
+            (output("hole")?, DefectKind::Hole),
+            (output("scratch")?, DefectKind::Scratch),
+            (output("edge_chip")?, DefectKind::EdgeChip),
+        ];
+        Ok(Self {
+            engine,
+            inputs,
+            outputs,
+        })
+    }
+
+    /// The engine (for learning, which tunes its terms).
+    pub fn engine(&self) -> &Engine {
+        &self.engine
+    }
+
+    /// Kind and certainty for `e`.
+    pub fn classify(
+        &mut self,
+        e: &Evidence,
+        min_confidence: f64,
+    ) -> Result<(DefectKind, f64), CoreError> {
+        let values = [
+            e.curvature_per_mm,
+            e.direction,
+            e.gap_mm,
+            e.height_similarity_mm,
+            e.elongation,
+            e.edge_notch_mm,
+        ];
+        for (&i, &v) in self.inputs.iter().zip(&values) {
+            self.engine
+                .set_input(i, if v.is_finite() { v } else { 0.0 });
+        }
+        self.engine.process().map_err(rule_error)?;
+        let mut best = (DefectKind::Anomaly, 0.0);
+        for &(o, kind) in &self.outputs {
+            let v = self.engine.output_value(o);
+            if v.is_finite() && v > best.1 {
+                best = (kind, v);
+            }
+        }
+        if best.1 < min_confidence {
+            best.0 = DefectKind::Anomaly;
+        }
+        Ok(best)
+    }
+}
+
+/// What detection found.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Detection {
+    /// Defects, sorted by position (y descending, then x) for stable reports.
+    pub defects: Vec<Defect>,
+    /// Unmeasured regions that are not holes.
+    pub unmeasured: Vec<Unmeasured>,
+    /// Conditions that limit what the inspection can say (the part runs out of the view, little data).
+    pub warnings: Vec<String>,
+    /// Cells of the part.
+    pub part_cells: usize,
+    /// Share of the expected outline that holds data.
+    pub coverage: f64,
+}
+
+/// Labels 4- or 8-connected components of cells where `member` holds; returns (labels, sizes); label 0 = none.
+fn components(
+    w: usize,
+    h: usize,
+    member: impl Fn(usize) -> bool,
+    eight: bool,
+) -> (Vec<u32>, Vec<usize>) {
+    let mut label = vec![0u32; w * h];
+    let mut sizes = vec![0usize];
+    let mut queue = VecDeque::new();
+    for start in 0..w * h {
+        if label[start] != 0 || !member(start) {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        let mut n = 0usize;
+        label[start] = id;
+        queue.push_back(start);
+        while let Some(k) = queue.pop_front() {
+            n += 1;
+            let (i, j) = ((k % w) as i64, (k / w) as i64);
+            for (di, dj) in NEIGHBOURS8 {
+                if !eight && di != 0 && dj != 0 {
+                    continue;
+                }
+                let (a, b) = (i + di, j + dj);
+                if a < 0 || b < 0 || a >= w as i64 || b >= h as i64 {
+                    continue;
+                }
+                let kk = b as usize * w + a as usize;
+                if label[kk] == 0 && member(kk) {
+                    label[kk] = id;
+                    queue.push_back(kk);
+                }
+            }
+        }
+        sizes.push(n);
+    }
+    (label, sizes)
+}
+
+/// Pieces of the part smaller than this (mm²), and smaller than a twentieth of the largest, are debris.
+const MIN_PIECE_MM2: f64 = 25.0;
+
+const NEIGHBOURS8: [(i64, i64); 8] = [
+    (-1, 0),
+    (1, 0),
+    (0, -1),
+    (0, 1),
+    (-1, -1),
+    (1, -1),
+    (-1, 1),
+    (1, 1),
+];
+
+/// Distance (cells, 3-4 chamfer: within 8% of Euclidean) of every cell to the nearest cell where `outside` holds.
+fn distance_to(w: usize, h: usize, outside: impl Fn(usize) -> bool) -> Vec<f32> {
+    let big = 3 * (w + h) as u32;
+    let mut d: Vec<u32> = (0..w * h)
+        .map(|k| if outside(k) { 0 } else { big })
+        .collect();
+    for j in 0..h {
+        for i in 0..w {
+            let k = j * w + i;
+            let mut v = d[k];
+            if i > 0 {
+                v = v.min(d[k - 1] + 3);
+            }
+            if j > 0 {
+                v = v.min(d[k - w] + 3);
+                if i > 0 {
+                    v = v.min(d[k - w - 1] + 4);
+                }
+                if i + 1 < w {
+                    v = v.min(d[k - w + 1] + 4);
+                }
+            }
+            d[k] = v;
+        }
+    }
+    for j in (0..h).rev() {
+        for i in (0..w).rev() {
+            let k = j * w + i;
+            let mut v = d[k];
+            if i + 1 < w {
+                v = v.min(d[k + 1] + 3);
+            }
+            if j + 1 < h {
+                v = v.min(d[k + w] + 3);
+                if i + 1 < w {
+                    v = v.min(d[k + w + 1] + 4);
+                }
+                if i > 0 {
+                    v = v.min(d[k + w - 1] + 4);
+                }
+            }
+            d[k] = v;
+        }
+    }
+    d.into_iter().map(|v| v as f32 / 3.0).collect()
+}
+
+/// Dilation (`grow`) or erosion of a mask by a (2r+1)² square, as two separable passes with running counts.
+fn morph(w: usize, h: usize, mask: &[bool], r: usize, grow: bool) -> Vec<bool> {
+    // A cell of the result is `grow` when any cell of its window is `grow` (dilation: true; erosion: false).
+    let pass =
+        |src: &[bool], n: usize, lines: usize, at: &dyn Fn(usize, usize) -> usize| -> Vec<bool> {
+            let mut out = vec![!grow; w * h];
+            for line in 0..lines {
+                let mut count = 0usize;
+                for t in 0..n.min(r) {
+                    count += usize::from(src[at(line, t)] == grow);
+                }
+                for t in 0..n {
+                    if t + r < n {
+                        count += usize::from(src[at(line, t + r)] == grow);
+                    }
+                    if t > r {
+                        count -= usize::from(src[at(line, t - r - 1)] == grow);
+                    }
+                    out[at(line, t)] = if count > 0 { grow } else { !grow };
+                }
+            }
+            out
+        };
+    let rows = pass(mask, w, h, &|line, t| line * w + t);
+    pass(&rows, h, w, &|line, t| t * w + line)
+}
+
+/// Morphological closing of a mask by a (2r+1)² square: fills gaps up to 2r cells wide.
+fn closing(w: usize, h: usize, mask: &[bool], r: usize) -> Vec<bool> {
+    morph(w, h, &morph(w, h, mask, r, true), r, false)
+}
+
+/// Morphological opening (3 x 3) of a mask: removes structures one or two cells thin (the walls of a hole seen in
+/// perspective land as such slivers inside it) and keeps everything broader unchanged.
+fn opening(w: usize, h: usize, mask: &[bool]) -> Vec<bool> {
+    let out = morph(w, h, &morph(w, h, mask, 1, false), 1, true);
+    out.iter().zip(mask).map(|(&o, &m)| o && m).collect()
+}
+
+/// Per row, the [first, last] column inside the convex hull of `cells` (cell coordinates); None for empty rows.
+fn hull_rows(w: usize, h: usize, cells: &[usize]) -> Vec<Option<(f64, f64)>> {
+    // Extreme cells per row are enough for the hull.
+    let mut ext: Vec<Option<(usize, usize)>> = vec![None; h];
+    for &k in cells {
+        let (i, j) = (k % w, k / w);
+        ext[j] = Some(match ext[j] {
+            None => (i, i),
+            Some((a, b)) => (a.min(i), b.max(i)),
+        });
+    }
+    let mut pts: Vec<(f64, f64)> = Vec::new();
+    for (j, e) in ext.iter().enumerate() {
+        if let Some((a, b)) = *e {
+            pts.push((a as f64, j as f64));
+            pts.push((b as f64, j as f64));
+        }
+    }
+    pts.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
+    pts.dedup();
+    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
+    let mut hull: Vec<(f64, f64)> = Vec::new();
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &(f64, f64)>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
+        for &p in iter {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(p);
+        }
+        hull.pop();
+    }
+    let mut rows = vec![None; h];
+    if hull.len() < 3 {
+        for (j, e) in ext.iter().enumerate() {
+            rows[j] = e.map(|(a, b)| (a as f64, b as f64));
+        }
+        return rows;
+    }
+    for (j, row) in rows.iter_mut().enumerate() {
+        let y = j as f64;
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for t in 0..hull.len() {
+            let (a, b) = (hull[t], hull[(t + 1) % hull.len()]);
+            if (a.1 - y) * (b.1 - y) > 0.0 {
+                continue;
+            }
+            if a.1 == b.1 {
+                lo = lo.min(a.0.min(b.0));
+                hi = hi.max(a.0.max(b.0));
+            } else {
+                let x = a.0 + (y - a.1) / (b.1 - a.1) * (b.0 - a.0);
+                lo = lo.min(x);
+                hi = hi.max(x);
+            }
+        }
+        if lo <= hi {
+            *row = Some((lo, hi));
+        }
+    }
+    rows
+}
+
+/// Raised cosine bell of unit height over radius `r0`: the smooth profile bumps and dents are measured with.
+pub fn bell(d: f64, r0: f64) -> f64 {
+    if d >= r0 {
+        0.0
+    } else {
+        0.5 * (1.0 + (std::f64::consts::PI * d / r0).cos())
+    }
+}
+
+/// A fitted bell: amplitude (signed), centre, radius, offset; and the RMS residual.
+#[derive(Debug, Clone, Copy)]
+struct BellFit {
+    amplitude: f64,
+    centre: [f64; 2],
+    radius: f64,
+    offset: f64,
+    rms: f64,
+}
+
+/// Levenberg-Marquardt fit of `offset + amplitude * bell(|p − centre|, radius)` to samples (x, y, dev).
+fn fit_bell(samples: &[(f64, f64, f64)], init: BellFit) -> Option<BellFit> {
+    use nalgebra::{Matrix5, Vector5};
+    let residuals = |p: &BellFit| -> f64 {
+        samples
+            .iter()
+            .map(|&(x, y, z)| {
+                let d = (x - p.centre[0]).hypot(y - p.centre[1]);
+                (z - p.offset - p.amplitude * bell(d, p.radius)).powi(2)
+            })
+            .sum()
+    };
+    let mut p = init;
+    let mut cost = residuals(&p);
+    let mut lambda = 1e-3;
+    let pi = std::f64::consts::PI;
+    for _ in 0..60 {
+        let mut jtj = Matrix5::<f64>::zeros();
+        let mut jtr = Vector5::<f64>::zeros();
+        for &(x, y, z) in samples {
+            let (ux, uy) = (x - p.centre[0], y - p.centre[1]);
+            let d = ux.hypot(uy);
+            let b = bell(d, p.radius);
+            let r = z - p.offset - p.amplitude * b;
+            let mut jac = Vector5::new(b, 0.0, 0.0, 0.0, 1.0);
+            if d < p.radius && d > 1e-9 {
+                let s = 0.5 * (pi * d / p.radius).sin() * pi / p.radius;
+                jac[1] = p.amplitude * s * ux / d;
+                jac[2] = p.amplitude * s * uy / d;
+                jac[3] = p.amplitude * s * d / p.radius;
+            }
+            jtj += jac * jac.transpose();
+            jtr += jac * r;
+        }
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut a = jtj;
+            for t in 0..5 {
+                a[(t, t)] *= 1.0 + lambda;
+                a[(t, t)] += 1e-12;
+            }
+            let Some(step) = a.lu().solve(&jtr) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let q = BellFit {
+                amplitude: p.amplitude + step[0],
+                centre: [p.centre[0] + step[1], p.centre[1] + step[2]],
+                radius: (p.radius + step[3]).max(0.05),
+                offset: p.offset + step[4],
+                rms: 0.0,
+            };
+            let c = residuals(&q);
+            if c < cost {
+                let small = (cost - c) < 1e-10 * cost.max(1e-12);
+                p = q;
+                cost = c;
+                lambda = (lambda * 0.3).max(1e-9);
+                improved = !small;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    p.rms = (cost / samples.len().max(1) as f64).sqrt();
+    (p.amplitude.is_finite() && p.radius.is_finite()).then_some(p)
+}
+
+/// The dimensions of a region's cells: centroid weighted by `weight`, bounding box, and elongation.
+struct Shape {
+    centroid: [f64; 2],
+    bbox: [f64; 4],
+    elongation: f64,
+}
+
+fn shape(range: &RangeImage, cells: &[usize], weight: impl Fn(usize) -> f64) -> Shape {
+    let w = range.width;
+    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    let mut bbox = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let (hx, hy) = (range.spacing_mm[0] / 2.0, range.spacing_mm[1] / 2.0);
+    for &k in cells {
+        let (x, y) = cell_xy(range, k % w, k / w);
+        let wt = weight(k).max(1e-12);
+        sw += wt;
+        sx += wt * x;
+        sy += wt * y;
+        bbox = [
+            bbox[0].min(x - hx),
+            bbox[1].min(y - hy),
+            bbox[2].max(x + hx),
+            bbox[3].max(y + hy),
+        ];
+    }
+    let c = [sx / sw, sy / sw];
+    // Unweighted second moments for the shape.
+    let n = cells.len() as f64;
+    let (mut mx, mut my) = (0.0, 0.0);
+    for &k in cells {
+        let (x, y) = cell_xy(range, k % w, k / w);
+        mx += x;
+        my += y;
+    }
+    let (mx, my) = (mx / n, my / n);
+    let (mut cxx, mut cyy, mut cxy) = (0.0, 0.0, 0.0);
+    for &k in cells {
+        let (x, y) = cell_xy(range, k % w, k / w);
+        cxx += (x - mx).powi(2);
+        cyy += (y - my).powi(2);
+        cxy += (x - mx) * (y - my);
+    }
+    // Each cell spreads over its own square: add its variance so single rows are not "infinitely thin".
+    let cell_var = range.spacing_mm[0] * range.spacing_mm[1] / 12.0;
+    let (cxx, cyy, cxy) = (cxx / n + cell_var, cyy / n + cell_var, cxy / n);
+    let tr = cxx + cyy;
+    let det = cxx * cyy - cxy * cxy;
+    let disc = (tr * tr / 4.0 - det).max(0.0).sqrt();
+    let (l1, l2) = (tr / 2.0 + disc, (tr / 2.0 - disc).max(1e-12));
+    Shape {
+        centroid: c,
+        bbox,
+        elongation: (l1 / l2).sqrt(),
+    }
+}
+
+/// Finds, classifies and measures the defects of a characterized range image.
+pub fn detect(
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+) -> Result<Detection, CoreError> {
+    let (w, h) = (range.width, range.height);
+    if maps.class.len() != w * h {
+        return Err(CoreError::InvalidParameter {
+            field: "maps",
+            value: maps.class.len().to_string(),
+            reason: format!("characterization maps of another grid (this one is {w}x{h})"),
+        });
+    }
+    let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
+    let mut out = Detection::default();
+    // 1. The part: the largest 8-connected set of part cells.
+    // Seams of missing cells (between the bands of neighbouring stripes, along shadows) must not split the part:
+    // components are taken on the part mask closed over two cells.
+    let is_part: Vec<bool> = maps.class.iter().map(|c| *c == CellClass::Part).collect();
+    let closed = closing(w, h, &is_part, 2);
+    let (plabel, psizes) = components(w, h, |k| closed[k], true);
+    let Some(&main_size) = psizes.iter().skip(1).max() else {
+        return Err(CoreError::Inspection {
+            message:
+                "the range image shows no part (nothing above the belt): nothing can be inspected"
+                    .into(),
+        });
+    };
+    // Every large piece is the part: a seam wider than the closing must not leave half the part uninspected.
+    let min_piece = (main_size / 20)
+        .max((MIN_PIECE_MM2 / cell_area) as usize)
+        .min(main_size);
+    let pieces: Vec<bool> = psizes.iter().map(|&n| n >= min_piece).collect();
+    let in_part = |k: usize| plabel[k] != 0 && pieces[plabel[k] as usize];
+    let piece_count = pieces.iter().skip(1).filter(|&&p| p).count();
+    if piece_count > 1 {
+        out.warnings.push(format!(
+            "the part's surface falls into {piece_count} pieces separated by unmeasured strips: check the scan \
+             (stripe coding, shadows)"
+        ));
+    }
+    let main_part: Vec<bool> = (0..w * h).map(|k| in_part(k) && is_part[k]).collect();
+    let opened = opening(w, h, &main_part);
+    let on_part = |k: usize| opened[k];
+    out.part_cells = opened.iter().filter(|&&p| p).count();
+    if (main_size as f64) * cell_area < 4.0 {
+        return Err(CoreError::Inspection {
+            message: format!(
+                "the part shows only {:.1} mm² of surface: too little to inspect (check the scan)",
+                main_size as f64 * cell_area
+            ),
+        });
+    }
+    // The part running out of the measured area.
+    let mut touches = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            if !on_part(j * w + i) {
+                continue;
+            }
+            if j <= 1 && !touches.contains(&"top (+y)") {
+                touches.push("top (+y)");
+            }
+            if j + 2 >= h && !touches.contains(&"bottom (−y)") {
+                touches.push("bottom (−y)");
+            }
+            if i <= 1 && !touches.contains(&"start of the scan (−x)") {
+                touches.push("start of the scan (−x)");
+            }
+            if i + 2 >= w && !touches.contains(&"end of the scan (+x)") {
+                touches.push("end of the scan (+x)");
+            }
+        }
+    }
+    if !touches.is_empty() {
+        out.warnings.push(format!(
+            "the part runs out of the measured area at the {}: what lies beyond was not inspected",
+            touches.join(", ")
+        ));
+    }
+    let part_cells: Vec<usize> = (0..w * h).filter(|&k| on_part(k)).collect();
+    // Expected outline: the hull of the part, where the reference expects surface.
+    let rows = hull_rows(w, h, &part_cells);
+    let expected = |k: usize| -> bool {
+        let (i, j) = ((k % w) as f64, k / w);
+        maps.reference_mm[k].is_finite()
+            && rows[j].is_some_and(|(a, b)| i >= a - 1e-9 && i <= b + 1e-9)
+    };
+    let expected_cells = (0..w * h).filter(|&k| expected(k)).count();
+    out.coverage =
+        part_cells.iter().filter(|&&k| expected(k)).count() as f64 / expected_cells.max(1) as f64;
+    // Distance to the part's edges and the rims of its gaps; seams narrower than the closing (a missing column
+    // between two stripes' bands) are not edges: the surface on both sides of them is whole.
+    let edge_dist = distance_to(w, h, |k| !in_part(k) || !closed[k]);
+    let band = (params.edge_band_mm / range.spacing_mm[0].min(range.spacing_mm[1])) as f32;
+    // 2. Deviating regions by hysteresis, one sign at a time.
+    let mut candidates: Vec<(Vec<usize>, f64)> = Vec::new();
+    for sign in [1.0f32, -1.0] {
+        let grow = |k: usize| on_part(k) && maps.smoothed_mm[k] * sign >= params.grow_mm as f32;
+        let (label, sizes) = components(w, h, grow, true);
+        let mut seeded = vec![false; sizes.len()];
+        for k in 0..w * h {
+            if label[k] != 0
+                && maps.smoothed_mm[k] * sign >= params.seed_mm as f32
+                && edge_dist[k] > band
+            {
+                seeded[label[k] as usize] = true;
+            }
+        }
+        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); sizes.len()];
+        for k in 0..w * h {
+            if label[k] != 0 && seeded[label[k] as usize] {
+                cells[label[k] as usize].push(k);
+            }
+        }
+        for c in cells.into_iter().filter(|c| !c.is_empty()) {
+            if c.len() as f64 * cell_area >= params.min_area_mm2 {
+                candidates.push((c, f64::from(sign)));
+            }
+        }
+    }
+    if candidates.len() > params.max_candidates {
+        out.warnings.push(format!(
+            "{} deviating regions: more than the {} evaluated; the reference surface probably does not fit this part \
+             (use a golden scan or the product's model)",
+            candidates.len(),
+            params.max_candidates
+        ));
+        candidates.truncate(params.max_candidates);
+    }
+    for (cells, sign) in &candidates {
+        let s = shape(range, cells, |k| f64::from(maps.deviation_mm[k]).abs());
+        let (mut sum, mut sum_abs, mut curv) = (0.0, 0.0, 0.0f64);
+        let mut peak = 0.0f64;
+        let mut with_curvature = 0usize;
+        for &k in cells {
+            let d = f64::from(maps.deviation_mm[k]);
+            if d.is_finite() {
+                sum += d;
+                sum_abs += d.abs();
+                if d * sign > peak {
+                    peak = d * sign;
+                }
+            }
+            if let Some(g) = geometry_at(range, maps, k % w, k / w) {
+                curv = curv.max(g.mean_curvature.abs());
+                with_curvature += 1;
+            }
+        }
+        if 2 * with_curvature < cells.len() {
+            // Most of the region lies where the derivative window is incomplete (a narrow fragment between
+            // gaps): bound its curvature from its height and size as a bell's top, pi² A / (2 r²).
+            let r2 = cells.len() as f64 * cell_area / std::f64::consts::PI;
+            curv = curv.max(std::f64::consts::PI.powi(2) * peak / (2.0 * r2));
+        }
+        let ev = Evidence {
+            curvature_per_mm: curv,
+            direction: if sum_abs > 0.0 { sum / sum_abs } else { 0.0 },
+            gap_mm: 0.0,
+            height_similarity_mm: 50.0,
+            elongation: s.elongation,
+            edge_notch_mm: 0.0,
+            cells: cells.len(),
+        };
+        let (kind, confidence) = rules.classify(&ev, params.min_confidence)?;
+        let area = cells.len() as f64 * cell_area;
+        if kind == DefectKind::Anomaly && area < params.min_anomaly_mm2 {
+            // Small, steep and nameless: heights a wrong stripe index or a glint put there, not a surface.
+            out.unmeasured.push(Unmeasured {
+                centroid_mm: s.centroid,
+                area_mm2: area,
+                reason: format!(
+                    "{peak:.2} mm off the reference over {area:.2} mm² with a curvature of {curv:.1}/mm: outlier \
+                     heights, not a surface the rules can name"
+                ),
+            });
+            continue;
+        }
+        let mut d = Defect {
+            kind,
+            centroid_mm: s.centroid,
+            bbox_mm: s.bbox,
+            area_mm2: area,
+            depth_mm: peak,
+            volume_mm3: sum_abs * cell_area,
+            confidence,
+            bottom_seen: true,
+            evidence: ev,
+        };
+        if matches!(kind, DefectKind::Bump | DefectKind::Dent) {
+            measure_bell(range, maps, &s, *sign, peak, params.grow_mm, &mut d);
+        }
+        out.defects.push(d);
+    }
+    // 3. Gaps: regions without part data that the outside cannot reach.
+    let (olabel, _) = components(w, h, |k| !on_part(k), false);
+    let mut outside_ids = std::collections::HashSet::new();
+    for i in 0..w {
+        outside_ids.insert(olabel[i]);
+        outside_ids.insert(olabel[(h - 1) * w + i]);
+    }
+    for j in 0..h {
+        outside_ids.insert(olabel[j * w]);
+        outside_ids.insert(olabel[j * w + w - 1]);
+    }
+    let mut gaps: std::collections::BTreeMap<u32, Vec<usize>> = std::collections::BTreeMap::new();
+    for (k, &l) in olabel.iter().enumerate() {
+        if l != 0 && !outside_ids.contains(&l) {
+            gaps.entry(l).or_default().push(k);
+        }
+    }
+    for cells in gaps.values() {
+        let area = cells.len() as f64 * cell_area;
+        if area < params.min_gap_mm2 {
+            continue;
+        }
+        let expected_share = cells
+            .iter()
+            .filter(|&&k| maps.reference_mm[k].is_finite())
+            .count() as f64
+            / cells.len() as f64;
+        if expected_share < 0.5 {
+            // The reference has no surface here either: a designed opening.
+            continue;
+        }
+        let s = shape(range, cells, |_| 1.0);
+        // Ring: part cells within two cells of the gap.
+        // Ring: part cells beyond the rim band (half-lit stripes, walls seen in perspective), three cells deep;
+        // distances on a window around the gap only.
+        let ring_lo = band.max(1.0);
+        let ring_hi = ring_lo + 3.0;
+        let (bi0, bj0, bi1, bj1) = bbox_cells(range, &s.bbox, ring_hi.ceil() as usize + 1);
+        let (ww, wh) = (bi1 - bi0, bj1 - bj0);
+        let mut in_gap = vec![false; ww * wh];
+        for &k in cells {
+            let (i, j) = (k % w, k / w);
+            if (bi0..bi1).contains(&i) && (bj0..bj1).contains(&j) {
+                in_gap[(j - bj0) * ww + (i - bi0)] = true;
+            }
+        }
+        let near = distance_to(ww, wh, |k| in_gap[k]);
+        let (mut left, mut right, mut top, mut bottom) = (vec![], vec![], vec![], vec![]);
+        let (ci, cj) = (
+            (s.centroid[0] - range.origin_mm[0]) / range.spacing_mm[0],
+            (range.origin_mm[1] - s.centroid[1]) / range.spacing_mm[1],
+        );
+        for j in bj0..bj1 {
+            for i in bi0..bi1 {
+                let k = j * w + i;
+                let dist = near[(j - bj0) * ww + (i - bi0)];
+                if dist < ring_lo || dist > ring_hi || !on_part(k) {
+                    continue;
+                }
+                let d = f64::from(maps.deviation_mm[k]);
+                if !d.is_finite() {
+                    continue;
+                }
+                if (i as f64) < ci {
+                    left.push(d)
+                } else {
+                    right.push(d)
+                }
+                if (j as f64) < cj {
+                    top.push(d)
+                } else {
+                    bottom.push(d)
+                }
+            }
+        }
+        let similarity =
+            if left.is_empty() || right.is_empty() || top.is_empty() || bottom.is_empty() {
+                50.0
+            } else {
+                (median(&mut left) - median(&mut right))
+                    .abs()
+                    .max((median(&mut top) - median(&mut bottom)).abs())
+            };
+        let ev = Evidence {
+            curvature_per_mm: 0.0,
+            direction: 0.0,
+            gap_mm: 2.0 * (area / std::f64::consts::PI).sqrt(),
+            height_similarity_mm: similarity,
+            elongation: s.elongation,
+            edge_notch_mm: 0.0,
+            cells: cells.len(),
+        };
+        let (kind, confidence) = rules.classify(&ev, params.min_confidence)?;
+        if kind != DefectKind::Hole {
+            out.unmeasured.push(Unmeasured {
+                centroid_mm: s.centroid,
+                area_mm2: area,
+                reason: if similarity >= 50.0 {
+                    "no data and the surface around it is not measured on every side".into()
+                } else if similarity > 0.5 {
+                    format!("no data, with {similarity:.2} mm between the heights on either side (a shadow or an edge)")
+                } else {
+                    format!("no data over {:.1} mm (too large a gap to call a hole)", ev.gap_mm)
+                },
+            });
+            continue;
+        }
+        // Depth: the reference over the lowest surface seen inside (the belt when nothing is seen).
+        let mut refs: Vec<f64> = cells
+            .iter()
+            .map(|&k| f64::from(maps.reference_mm[k]))
+            .filter(|v| v.is_finite())
+            .collect();
+        let seen: Vec<f64> = cells
+            .iter()
+            .map(|&k| f64::from(range.z[k]))
+            .filter(|v| v.is_finite())
+            .collect();
+        // A bottom is seen when much of the gap holds heights (a few wall samples are not a bottom).
+        let bottom_seen = seen.len() as f64 >= params.min_seen_share * cells.len() as f64;
+        let floor = if bottom_seen {
+            let mut seen = seen;
+            median(&mut seen).max(0.0)
+        } else {
+            0.0
+        };
+        let reference = median(&mut refs);
+        out.defects.push(Defect {
+            kind,
+            centroid_mm: s.centroid,
+            bbox_mm: s.bbox,
+            area_mm2: area,
+            depth_mm: reference - floor,
+            volume_mm3: refs.iter().map(|r| (r - floor).max(0.0)).sum::<f64>() * cell_area,
+            confidence,
+            bottom_seen,
+            evidence: ev,
+        });
+    }
+    // 4. Edge chips: expected cells, not the part, open to the outside.
+    let chip = |k: usize| !on_part(k) && expected(k) && outside_ids.contains(&olabel[k]);
+    let (clabel, csizes) = components(w, h, chip, false);
+    if csizes.len() > 1 {
+        let depth = distance_to(w, h, |k| !expected(k));
+        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); csizes.len()];
+        for k in 0..w * h {
+            if clabel[k] != 0 {
+                cells[clabel[k] as usize].push(k);
+            }
+        }
+        for c in cells
+            .iter()
+            .filter(|c| c.len() as f64 * cell_area >= params.min_gap_mm2)
+        {
+            let notch = f64::from(c.iter().map(|&k| depth[k]).fold(0.0f32, f32::max))
+                * range.spacing_mm[0].min(range.spacing_mm[1]);
+            let s = shape(range, c, |_| 1.0);
+            let ev = Evidence {
+                curvature_per_mm: 0.0,
+                direction: 0.0,
+                gap_mm: 0.0,
+                height_similarity_mm: 50.0,
+                elongation: s.elongation,
+                edge_notch_mm: notch,
+                cells: c.len(),
+            };
+            let area = c.len() as f64 * cell_area;
+            // Missing material shows the belt (or a lower surface) where the part should be; a notch of cells
+            // without any data is missing measurement, not missing material.
+            let seen = c
+                .iter()
+                .filter(|&&k| maps.class[k] == CellClass::Belt)
+                .count();
+            if (seen as f64) < params.min_seen_share * c.len() as f64 {
+                if ev.edge_notch_mm >= params.edge_band_mm {
+                    out.unmeasured.push(Unmeasured {
+                        centroid_mm: s.centroid,
+                        area_mm2: area,
+                        reason: format!(
+                            "no data {notch:.2} mm into the part's outline (the belt is not seen there either)"
+                        ),
+                    });
+                }
+                continue;
+            }
+            let (kind, confidence) = rules.classify(&ev, params.min_confidence)?;
+            if kind != DefectKind::EdgeChip {
+                continue;
+            }
+            let mut refs: Vec<f64> = c
+                .iter()
+                .map(|&k| f64::from(maps.reference_mm[k]))
+                .filter(|v| v.is_finite())
+                .collect();
+            let area = c.len() as f64 * cell_area;
+            out.defects.push(Defect {
+                kind,
+                centroid_mm: s.centroid,
+                bbox_mm: s.bbox,
+                area_mm2: area,
+                depth_mm: median(&mut refs),
+                volume_mm3: refs.iter().sum::<f64>() * cell_area,
+                confidence,
+                bottom_seen: false,
+                evidence: ev,
+            });
+        }
+    }
+    if out.coverage < 0.9 {
+        out.warnings.push(format!(
+            "only {:.0}% of the part's outline holds data: unmeasured surface cannot be judged",
+            100.0 * out.coverage
+        ));
+    }
+    out.defects.sort_by(|a, b| {
+        b.centroid_mm[1]
+            .total_cmp(&a.centroid_mm[1])
+            .then(a.centroid_mm[0].total_cmp(&b.centroid_mm[0]))
+    });
+    Ok(out)
+}
+
+/// Everything inspection computes for one range image.
+#[derive(Debug, Clone)]
+pub struct Inspection {
+    /// The reference used.
+    pub reference: ReferenceInfo,
+    /// Characterization maps.
+    pub maps: SurfaceMaps,
+    /// What was found.
+    pub detection: Detection,
+    /// Cells removed as outlier heights before characterization.
+    pub outliers: usize,
+}
+
+/// Characterizes `range` against the reference from `source` and detects its defects.
+pub fn inspect(
+    range: &RangeImage,
+    source: ReferenceSource<'_>,
+    characterize: &CharacterizeParams,
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+) -> Result<Inspection, CoreError> {
+    if range.width == 0 || range.height == 0 || range.z.len() != range.width * range.height {
+        return Err(CoreError::Inspection {
+            message: format!(
+                "the range image is empty or inconsistent ({}x{} cells, {} values)",
+                range.width,
+                range.height,
+                range.z.len()
+            ),
+        });
+    }
+    if range.measured() == 0 {
+        return Err(CoreError::Inspection {
+            message:
+                "the range image holds no measurement at all (every cell is NaN): nothing was seen"
+                    .into(),
+        });
+    }
+    let mut cleaned = range.clone();
+    let outliers = remove_outliers(&mut cleaned, params.outlier_mm);
+    let (heights, reference) = reference_heights(&cleaned, source, characterize)?;
+    let maps = surface_maps(&cleaned, heights, characterize)?;
+    let detection = detect(&cleaned, &maps, rules, params)?;
+    Ok(Inspection {
+        reference,
+        maps,
+        detection,
+        outliers,
+    })
+}
+
+/// Cell index ranges (i0, j0, i1, j1) covering `bbox` plus `margin` cells, clamped to the grid.
+fn bbox_cells(range: &RangeImage, bbox: &[f64; 4], margin: usize) -> (usize, usize, usize, usize) {
+    let ci = |x: f64| ((x - range.origin_mm[0]) / range.spacing_mm[0]).round();
+    let cj = |y: f64| ((range.origin_mm[1] - y) / range.spacing_mm[1]).round();
+    let clamp = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
+    let m = margin as f64;
+    (
+        clamp(ci(bbox[0]) - m, range.width),
+        clamp(cj(bbox[3]) - m, range.height),
+        clamp(ci(bbox[2]) + m + 1.0, range.width),
+        clamp(cj(bbox[1]) + m + 1.0, range.height),
+    )
+}
+
+/// Measures a bump or dent by fitting a bell to the deviation around it; keeps the region's figures when the fit
+/// fails or is implausible.
+fn measure_bell(
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    s: &Shape,
+    sign: f64,
+    peak: f64,
+    grow_mm: f64,
+    d: &mut Defect,
+) {
+    let w = range.width;
+    let size = (s.bbox[2] - s.bbox[0]).max(s.bbox[3] - s.bbox[1]);
+    let margin = ((size.max(2.0)) / range.spacing_mm[0].min(range.spacing_mm[1])).ceil() as usize;
+    let (i0, j0, i1, j1) = bbox_cells(range, &s.bbox, margin);
+    let mut samples = Vec::new();
+    for j in j0..j1 {
+        for i in i0..i1 {
+            let v = f64::from(maps.deviation_mm[j * w + i]);
+            if v.is_finite() {
+                let (x, y) = cell_xy(range, i, j);
+                samples.push((x, y, v));
+            }
+        }
+    }
+    if samples.len() < 12 || peak <= 0.0 {
+        return;
+    }
+    // Initial radius from the region's size at the growth threshold: a bell is above t out to
+    // r0 * acos(2 t / A − 1) / pi.
+    let dt = (d.area_mm2 / std::f64::consts::PI).sqrt();
+    let frac = (2.0 * grow_mm / peak - 1.0).clamp(-1.0, 1.0);
+    let r0 = if frac < 0.999 {
+        dt * std::f64::consts::PI / frac.acos()
+    } else {
+        dt
+    };
+    let init = BellFit {
+        amplitude: sign * peak,
+        centre: s.centroid,
+        radius: r0.max(0.3),
+        offset: 0.0,
+        rms: 0.0,
+    };
+    let Some(f) = fit_bell(&samples, init) else {
+        return;
+    };
+    let plausible = f.amplitude * sign > 0.0
+        && f.radius > 0.3
+        && f.radius < 3.0 * r0.max(1.0)
+        && (f.centre[0] - s.centroid[0]).hypot(f.centre[1] - s.centroid[1]) < r0.max(1.0)
+        && f.rms < 0.5 * f.amplitude.abs();
+    if !plausible {
+        return;
+    }
+    let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
+    let volume: f64 = samples
+        .iter()
+        .filter(|&&(x, y, _)| (x - f.centre[0]).hypot(y - f.centre[1]) < f.radius)
+        .map(|&(_, _, v)| ((v - f.offset) * sign).max(0.0))
+        .sum::<f64>()
+        * cell_area;
+    d.centroid_mm = f.centre;
+    d.area_mm2 = std::f64::consts::PI * f.radius * f.radius;
+    d.depth_mm = f.amplitude.abs();
+    d.volume_mm3 = volume;
+    d.bbox_mm = [
+        f.centre[0] - f.radius,
+        f.centre[1] - f.radius,
+        f.centre[0] + f.radius,
+        f.centre[1] + f.radius,
+    ];
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::characterize::{CharacterizeParams, fit_reference, surface_maps};
+
+    /// A 40 x 30 mm, 10 mm plate on the belt on a 0.2 mm grid, with `f` added to its top.
+    fn plate(f: impl Fn(f64, f64) -> Option<f64>) -> RangeImage {
+        let (w, h) = (250, 200);
+        let mut r = RangeImage {
+            origin_mm: [-25.0, 20.0],
+            spacing_mm: [0.2, 0.2],
+            width: w,
+            height: h,
+            z: vec![0.0; w * h],
+        };
+        for j in 0..h {
+            for i in 0..w {
+                let (x, y) = cell_xy(&r, i, j);
+                let on = x.abs() <= 20.0 && y.abs() <= 15.0;
+                // Deterministic pseudo-noise of about 0.007 mm.
+                let n = (((i * 7919 + j * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.024;
+                r.z[j * w + i] = if on {
+                    match f(x, y) {
+                        Some(dz) => (10.0 + dz + n) as f32,
+                        None => f32::NAN,
+                    }
+                } else {
+                    n.abs() as f32
+                };
+            }
+        }
+        r
+    }
+
+    fn run(r: &RangeImage) -> Detection {
+        let p = CharacterizeParams::default();
+        let reference = fit_reference(r, &p).expect("fit");
+        let maps = surface_maps(r, reference.heights(r), &p).expect("maps");
+        let mut rules = SurfaceRules::shipped().expect("rules");
+        detect(r, &maps, &mut rules, &DetectParams::default()).expect("detect")
+    }
+
+    #[test]
+    fn clean_plate_has_no_defects() {
+        let d = run(&plate(|_, _| Some(0.0)));
+        assert!(d.defects.is_empty(), "{:?}", d.defects);
+        assert!(d.warnings.is_empty(), "{:?}", d.warnings);
+        assert!(d.coverage > 0.99);
+    }
+
+    #[test]
+    fn bump_dent_hole_scratch_and_chip_are_found_measured_and_named() {
+        let r = plate(|x, y| {
+            let bump = 0.3 * bell((x + 10.0).hypot(y - 5.0), 2.5);
+            let dent = -0.15 * bell((x - 8.0).hypot(y + 6.0), 1.5);
+            let scratch = if (y - 8.0).abs() < 0.3 && x > 2.0 && x < 14.0 {
+                -0.2
+            } else {
+                0.0
+            };
+            if (x - 0.0).hypot(y + 2.0) < 1.5 || (x - 20.0).hypot(y) < 2.0 {
+                None
+            } else {
+                Some(bump + dent + scratch)
+            }
+        });
+        // The chip is cut through the plate down to the belt.
+        let mut r = r;
+        for j in 0..r.height {
+            for i in 0..r.width {
+                let (x, y) = cell_xy(&r, i, j);
+                if (x - 20.0).hypot(y) < 2.0 && x <= 20.0 {
+                    r.z[j * r.width + i] = 0.0;
+                }
+            }
+        }
+        let d = run(&r);
+        let find = |k: DefectKind| {
+            d.defects
+                .iter()
+                .find(|x| x.kind == k)
+                .unwrap_or_else(|| panic!("no {k:?} in {:#?}", d.defects))
+        };
+        let b = find(DefectKind::Bump);
+        assert!(
+            (b.centroid_mm[0] + 10.0).abs() < 0.1 && (b.centroid_mm[1] - 5.0).abs() < 0.1,
+            "{b:?}"
+        );
+        assert!((b.depth_mm - 0.3).abs() < 0.02, "{b:?}");
+        let area = std::f64::consts::PI * 2.5 * 2.5;
+        assert!((b.area_mm2 - area).abs() < 0.1 * area, "{b:?}");
+        let dent = find(DefectKind::Dent);
+        assert!(
+            (dent.depth_mm - 0.15).abs() < 0.02 && (dent.centroid_mm[0] - 8.0).abs() < 0.1,
+            "{dent:?}"
+        );
+        let hole = find(DefectKind::Hole);
+        assert!(
+            (hole.depth_mm - 10.0).abs() < 0.05 && !hole.bottom_seen,
+            "{hole:?}"
+        );
+        assert!(
+            (hole.area_mm2 - std::f64::consts::PI * 2.25).abs() < 0.2 * 7.07,
+            "{hole:?}"
+        );
+        let s = find(DefectKind::Scratch);
+        assert!(s.bbox_mm[2] - s.bbox_mm[0] > 10.0, "{s:?}");
+        let c = find(DefectKind::EdgeChip);
+        assert!((c.centroid_mm[0] - 19.2).abs() < 0.5, "{c:?}");
+        assert_eq!(d.defects.len(), 5, "{:#?}", d.defects);
+    }
+
+    #[test]
+    fn empty_scans_and_parts_out_of_view_are_reported() {
+        let empty = RangeImage {
+            origin_mm: [0.0, 0.0],
+            spacing_mm: [0.2, 0.2],
+            width: 10,
+            height: 10,
+            z: vec![f32::NAN; 100],
+        };
+        let p = CharacterizeParams::default();
+        assert!(fit_reference(&empty, &p).is_err());
+        let maps = surface_maps(&empty, vec![0.0; 100], &p).expect("maps");
+        let mut rules = SurfaceRules::shipped().expect("rules");
+        let e = detect(&empty, &maps, &mut rules, &DetectParams::default()).expect_err("no part");
+        assert!(e.to_string().contains("no part"), "{e}");
+        // A plate running off the top of the grid.
+        let mut r = plate(|_, _| Some(0.0));
+        for i in 0..r.width {
+            let (x, _) = cell_xy(&r, i, 0);
+            if x.abs() < 20.0 {
+                for j in 0..30 {
+                    r.z[j * r.width + i] = 10.0;
+                }
+            }
+        }
+        let d = run(&r);
+        assert!(
+            d.warnings.iter().any(|w| w.contains("top")),
+            "{:?}",
+            d.warnings
+        );
+    }
+
+    /// Naive dilation (grow) or erosion over a (2r+1)² window clipped to the grid.
+    fn naive(w: usize, h: usize, m: &[bool], r: usize, grow: bool) -> Vec<bool> {
+        (0..w * h)
+            .map(|k| {
+                let (i, j) = (k % w, k / w);
+                let hit = (j.saturating_sub(r)..(j + r + 1).min(h)).any(|jj| {
+                    (i.saturating_sub(r)..(i + r + 1).min(w)).any(|ii| m[jj * w + ii] == grow)
+                });
+                if hit { grow } else { !grow }
+            })
+            .collect()
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn separable_morphology_matches_the_naive_window(
+            w in 1usize..12, h in 1usize..12, r in 1usize..4, grow: bool, bits in proptest::collection::vec(proptest::bool::ANY, 144)
+        ) {
+            let m = &bits[..w * h];
+            proptest::prop_assert_eq!(morph(w, h, m, r, grow), naive(w, h, m, r, grow));
+        }
+
+        #[test]
+        fn chamfer_distance_is_within_8_percent_of_euclidean(
+            w in 2usize..15, h in 2usize..15, seeds in proptest::collection::vec((0usize..15, 0usize..15), 1..4)
+        ) {
+            let pts: Vec<(usize, usize)> = seeds.iter().map(|&(i, j)| (i % w, j % h)).collect();
+            let d = distance_to(w, h, |k| pts.contains(&(k % w, k / w)));
+            for (k, &dk) in d.iter().enumerate() {
+                let (i, j) = ((k % w) as f64, (k / w) as f64);
+                let e = pts.iter().map(|&(a, b)| (i - a as f64).hypot(j - b as f64)).fold(f64::INFINITY, f64::min);
+                proptest::prop_assert!((f64::from(dk) - e).abs() <= 0.09 * e + 1e-6, "{dk} vs {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn kinds_round_trip_by_name() {
+        for k in DefectKind::ALL {
+            assert_eq!(DefectKind::from_name(k.name()), Some(k));
+        }
+    }
+}

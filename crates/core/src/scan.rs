@@ -1,0 +1,85 @@
+//! Scanning: one frame to one triangulated profile (extract → code → triangulate), and a scan's profiles to a
+//! range image. The command line, the benchmarks and the ground-truth tests all go through [`Scanner`], so they
+//! measure the same chain.
+
+use crate::CoreError;
+use crate::accumulate::{ModelKind, Profile, RangeGrid, RangeImage, RangeParams, profile_into};
+use crate::calibrate::Calibration;
+use crate::code::{Coding, CodingParams, CodingStats, StripeCoder};
+use crate::extract::{ExtractParams, Extraction, Extractor};
+use crate::image::{ImageView, Pixel};
+
+/// The per-frame stages of a scan with their reusable buffers. One per thread; clone it to get another.
+#[derive(Debug, Clone)]
+pub struct Scanner {
+    extractor: Extractor,
+    coder: StripeCoder,
+    model: ModelKind,
+    extraction: Extraction,
+    coding: Coding,
+}
+
+impl Scanner {
+    /// A scanner for frames of the calibrated camera; `coding` bounds the heights stripe coding allows.
+    pub fn new(
+        cal: &Calibration,
+        extract: ExtractParams,
+        coding: CodingParams,
+        model: ModelKind,
+    ) -> Result<Self, CoreError> {
+        let cam = &cal.full.camera;
+        Ok(Self {
+            extractor: Extractor::new(extract)?,
+            coder: StripeCoder::new(&cal.full, cam.width, cam.height, coding)?,
+            model,
+            extraction: Extraction::default(),
+            coding: Coding::default(),
+        })
+    }
+
+    /// Extracts, codes and triangulates one frame into `out`; returns the frame's coding counts.
+    ///
+    /// `travel_mm` is the conveyor travel since frame 0. The frame must have the calibrated camera's size (the
+    /// caller checks, so that its error can name the file).
+    pub fn profile_into<T: Pixel>(
+        &mut self,
+        frame: ImageView<'_, T>,
+        index: usize,
+        travel_mm: f64,
+        cal: &Calibration,
+        out: &mut Profile,
+    ) -> CodingStats {
+        self.extractor.extract_into(frame, &mut self.extraction);
+        self.coder
+            .code_into(&self.extraction.points, &mut self.coding);
+        profile_into(
+            index,
+            travel_mm,
+            &self.extraction.points,
+            &self.coding,
+            &cal.full,
+            Some(&cal.linear),
+            self.model,
+            out,
+        );
+        self.coding.stats
+    }
+}
+
+/// The range image of a scan's profiles (in frame order) on a grid of `spacing_mm`: samples of one stripe and row
+/// in consecutive frames are joined when they are at most 2.5 frame steps apart (so a grid finer than the travel
+/// per frame has no empty columns), and never across a height step.
+pub fn range_image(profiles: &[Profile], spacing_mm: [f64; 2]) -> Result<RangeImage, CoreError> {
+    let step = profiles
+        .windows(2)
+        .map(|w| (w[1].travel_mm - w[0].travel_mm).abs())
+        .fold(0.0f64, f64::max);
+    let params = RangeParams {
+        spacing_mm,
+        max_fill_mm: (2.5 * step).max(spacing_mm[0] * 1.5),
+        ..RangeParams::default()
+    };
+    let mut grid = RangeGrid::covering(profiles, params)?;
+    grid.accumulate(profiles);
+    Ok(grid.image())
+}

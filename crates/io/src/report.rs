@@ -1,0 +1,456 @@
+//! Reading a range image back (`range.json` + `range.tiff`, as `stripe3d scan` writes them), and writing an
+//! inspection: `report.json` and the pictures a person looks at instead of reading — the range image colour-mapped
+//! with every defect outlined and numbered, and the deviation map (blue below the reference, red above).
+
+use crate::IoError;
+use crate::files::{read_text, write_atomic};
+use crate::images::{colormap, write_rgb_png};
+use std::path::{Path, PathBuf};
+use stripe3d_core::accumulate::RangeImage;
+use stripe3d_core::detect::{Defect, DefectKind};
+
+/// Largest range image read, cells.
+pub const MAX_RANGE_CELLS: usize = 64 << 20;
+
+/// Reads a range image: `path` is a `range.json` or a folder holding one (the output folder of `stripe3d scan`).
+pub fn read_range(path: &Path) -> Result<RangeImage, IoError> {
+    let json_path: PathBuf = if path.is_dir() {
+        path.join("range.json")
+    } else {
+        path.to_path_buf()
+    };
+    let text = read_text(&json_path)?;
+    range_from_json(&json_path, &text)
+}
+
+fn invalid(path: &Path, field: &str, message: impl Into<String>) -> IoError {
+    IoError::Invalid {
+        path: path.to_path_buf(),
+        line: None,
+        field: field.into(),
+        message: message.into(),
+    }
+}
+
+/// Parses a `range.json` (its TIFF is read from beside `json_path`).
+pub fn range_from_json(json_path: &Path, text: &str) -> Result<RangeImage, IoError> {
+    let doc: serde_json::Value = serde_json::from_str(text).map_err(|e| IoError::Syntax {
+        path: json_path.to_path_buf(),
+        line: e.line(),
+        column: e.column(),
+        message: format!("{e} (is this a range.json written by `stripe3d scan`?)"),
+    })?;
+    let size = |field: &str| -> Result<usize, IoError> {
+        doc.get(field)
+            .and_then(serde_json::Value::as_u64)
+            .filter(|&v| v > 0)
+            .map(|v| v as usize)
+            .ok_or_else(|| invalid(json_path, field, "must be a positive whole number of cells"))
+    };
+    let pair = |field: &str, positive: bool| -> Result<[f64; 2], IoError> {
+        let v = doc
+            .get(field)
+            .and_then(serde_json::Value::as_array)
+            .filter(|a| a.len() == 2)
+            .ok_or_else(|| invalid(json_path, field, "must be a list of two numbers [x, y]"))?;
+        let mut out = [0.0; 2];
+        for (o, x) in out.iter_mut().zip(v) {
+            *o = x
+                .as_f64()
+                .filter(|x| x.is_finite() && (!positive || *x > 0.0))
+                .ok_or_else(|| {
+                    invalid(
+                        json_path,
+                        field,
+                        if positive {
+                            "must hold two positive finite numbers (mm)"
+                        } else {
+                            "must hold two finite numbers (mm)"
+                        },
+                    )
+                })?;
+        }
+        Ok(out)
+    };
+    let (width, height) = (size("width")?, size("height")?);
+    if width.saturating_mul(height) > MAX_RANGE_CELLS {
+        return Err(invalid(
+            json_path,
+            "width",
+            format!("{width}x{height} cells exceed the limit of {MAX_RANGE_CELLS}"),
+        ));
+    }
+    let origin_mm = pair("origin_mm", false)?;
+    let spacing_mm = pair("spacing_mm", true)?;
+    let file = doc
+        .get("file")
+        .and_then(serde_json::Value::as_str)
+        .filter(|f| !f.is_empty() && !f.contains(['/', '\\']))
+        .ok_or_else(|| {
+            invalid(
+                json_path,
+                "file",
+                "must name the TIFF beside the JSON (e.g. \"range.tiff\")",
+            )
+        })?;
+    let tiff_path = json_path.parent().unwrap_or(Path::new(".")).join(file);
+    let bytes = std::fs::read(&tiff_path).map_err(|source| IoError::Read {
+        path: tiff_path.clone(),
+        source,
+    })?;
+    let bad = |m: String| IoError::Image {
+        path: tiff_path.clone(),
+        message: m,
+    };
+    let mut dec = tiff::decoder::Decoder::new(std::io::Cursor::new(bytes))
+        .map_err(|e| bad(format!("not a TIFF: {e}")))?;
+    let (tw, th) = dec
+        .dimensions()
+        .map_err(|e| bad(format!("unreadable size: {e}")))?;
+    if (tw as usize, th as usize) != (width, height) {
+        return Err(bad(format!(
+            "{tw}x{th} cells but {} says {width}x{height}",
+            json_path.display()
+        )));
+    }
+    let z = match dec
+        .read_image()
+        .map_err(|e| bad(format!("cannot decode: {e}")))?
+    {
+        tiff::decoder::DecodingResult::F32(v) => v,
+        _ => return Err(bad("must be one channel of float32 heights in mm".into())),
+    };
+    if z.len() != width * height {
+        return Err(bad(format!(
+            "{} samples for {width}x{height} cells: one float32 channel is expected",
+            z.len()
+        )));
+    }
+    if z.iter().any(|v| v.is_infinite()) {
+        return Err(bad(
+            "holds infinite heights (only finite values and NaN are allowed)".into(),
+        ));
+    }
+    Ok(RangeImage {
+        origin_mm,
+        spacing_mm,
+        width,
+        height,
+        z,
+    })
+}
+
+/// Outline colour of a defect kind.
+pub fn kind_colour(kind: DefectKind) -> [u8; 3] {
+    match kind {
+        DefectKind::Bump => [255, 60, 40],
+        DefectKind::Dent => [40, 140, 255],
+        DefectKind::Hole => [255, 0, 255],
+        DefectKind::Scratch => [0, 255, 255],
+        DefectKind::EdgeChip => [255, 160, 0],
+        DefectKind::Anomaly => [255, 255, 255],
+    }
+}
+
+/// 3 x 5 glyphs (rows top to bottom, 3 bits each, high bit left) for labels.
+fn glyph(c: char) -> Option<[u8; 5]> {
+    Some(match c {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        'B' => [6, 5, 6, 5, 6],
+        'D' => [6, 5, 5, 5, 6],
+        'H' => [5, 5, 7, 5, 5],
+        'S' => [7, 4, 7, 1, 7],
+        'C' => [7, 4, 4, 4, 7],
+        'A' => [2, 5, 7, 5, 5],
+        _ => return None,
+    })
+}
+
+/// An RGB canvas.
+struct Canvas {
+    w: usize,
+    h: usize,
+    rgb: Vec<u8>,
+}
+
+impl Canvas {
+    fn put(&mut self, x: i64, y: i64, c: [u8; 3]) {
+        if x >= 0 && y >= 0 && (x as usize) < self.w && (y as usize) < self.h {
+            let k = 3 * (y as usize * self.w + x as usize);
+            self.rgb[k..k + 3].copy_from_slice(&c);
+        }
+    }
+
+    fn text(&mut self, x: i64, y: i64, s: &str, scale: i64, c: [u8; 3]) {
+        let mut cx = x;
+        for ch in s.chars() {
+            if let Some(g) = glyph(ch) {
+                for (r, bits) in g.iter().enumerate() {
+                    for b in 0..3 {
+                        if bits & (4 >> b) != 0 {
+                            for dy in 0..scale {
+                                for dx in 0..scale {
+                                    // A dark shadow keeps labels legible on any colour.
+                                    self.put(
+                                        cx + b * scale + dx + 1,
+                                        y + r as i64 * scale + dy + 1,
+                                        [0, 0, 0],
+                                    );
+                                    self.put(cx + b * scale + dx, y + r as i64 * scale + dy, c);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            cx += 4 * scale;
+        }
+    }
+
+    fn rect(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, c: [u8; 3]) {
+        for t in 0..2 {
+            for x in x0 - t..=x1 + t {
+                self.put(x, y0 - t, c);
+                self.put(x, y1 + t, c);
+            }
+            for y in y0 - t..=y1 + t {
+                self.put(x0 - t, y, c);
+                self.put(x1 + t, y, c);
+            }
+        }
+    }
+
+    fn circle(&mut self, cx: f64, cy: f64, r: f64, c: [u8; 3]) {
+        let n = (r * 8.0).ceil().max(24.0) as usize;
+        for k in 0..n {
+            let a = k as f64 / n as f64 * std::f64::consts::TAU;
+            for dr in [0.0, 1.0] {
+                self.put(
+                    (cx + (r + dr) * a.cos()).round() as i64,
+                    (cy + (r + dr) * a.sin()).round() as i64,
+                    c,
+                );
+            }
+        }
+    }
+}
+
+/// Pixels per range cell in the pictures (small range images are enlarged so labels stay legible).
+fn picture_scale(range: &RangeImage) -> usize {
+    (1600 / range.width.max(range.height).max(1)).clamp(1, 4)
+}
+
+/// The range image colour-mapped (heights, +y up, grey where nothing was measured) with every defect outlined in
+/// its kind's colour and labelled with its number and initial (B bump, D dent, H hole, S scratch, C edge chip,
+/// A anomaly).
+pub fn defects_picture(range: &RangeImage, defects: &[Defect]) -> (usize, usize, Vec<u8>) {
+    let s = picture_scale(range);
+    let (w, h) = (range.width * s, range.height * s);
+    let (lo, hi) = range
+        .z_range()
+        .map_or((0.0, 1.0), |(a, b)| (f64::from(a), f64::from(b)));
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let mut c = Canvas {
+        w,
+        h,
+        rgb: vec![0; w * h * 3],
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let z = f64::from(range.z[(y / s) * range.width + x / s]);
+            let col = if z.is_finite() {
+                colormap((z - lo) / span)
+            } else {
+                [110, 110, 110]
+            };
+            c.put(x as i64, y as i64, col);
+        }
+    }
+    draw_defects(&mut c, range, defects, s);
+    (w, h, c.rgb)
+}
+
+fn to_px(range: &RangeImage, s: usize, x: f64, y: f64) -> (f64, f64) {
+    (
+        ((x - range.origin_mm[0]) / range.spacing_mm[0] + 0.5) * s as f64,
+        ((range.origin_mm[1] - y) / range.spacing_mm[1] + 0.5) * s as f64,
+    )
+}
+
+fn draw_defects(c: &mut Canvas, range: &RangeImage, defects: &[Defect], s: usize) {
+    for (n, d) in defects.iter().enumerate() {
+        let col = kind_colour(d.kind);
+        let (px0, py0) = to_px(range, s, d.bbox_mm[0], d.bbox_mm[3]);
+        let (px1, py1) = to_px(range, s, d.bbox_mm[2], d.bbox_mm[1]);
+        match d.kind {
+            DefectKind::Bump | DefectKind::Dent | DefectKind::Hole => {
+                let (cx, cy) = to_px(range, s, d.centroid_mm[0], d.centroid_mm[1]);
+                let r = ((px1 - px0).max(py1 - py0) / 2.0).max(4.0) + 2.0;
+                c.circle(cx, cy, r, col);
+            }
+            _ => c.rect(
+                px0 as i64 - 2,
+                py0 as i64 - 2,
+                px1 as i64 + 2,
+                py1 as i64 + 2,
+                col,
+            ),
+        }
+        let initial = match d.kind {
+            DefectKind::Bump => 'B',
+            DefectKind::Dent => 'D',
+            DefectKind::Hole => 'H',
+            DefectKind::Scratch => 'S',
+            DefectKind::EdgeChip => 'C',
+            DefectKind::Anomaly => 'A',
+        };
+        let scale = (s as i64).max(2);
+        c.text(
+            px1 as i64 + 4,
+            py0 as i64 - 4,
+            &format!("{}{initial}", n + 1),
+            scale,
+            col,
+        );
+    }
+}
+
+/// The deviation map: blue below the reference, red above, white on it, at ±`full_scale_mm`; grey where there is
+/// no deviation (not the part, not measured). Defects outlined as in [`defects_picture`].
+pub fn deviation_picture(
+    range: &RangeImage,
+    deviation_mm: &[f32],
+    full_scale_mm: f64,
+    defects: &[Defect],
+) -> (usize, usize, Vec<u8>) {
+    let s = picture_scale(range);
+    let (w, h) = (range.width * s, range.height * s);
+    let mut c = Canvas {
+        w,
+        h,
+        rgb: vec![0; w * h * 3],
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let d = f64::from(deviation_mm[(y / s) * range.width + x / s]);
+            let col = if !d.is_finite() {
+                [90, 90, 90]
+            } else {
+                let t = (d / full_scale_mm).clamp(-1.0, 1.0);
+                let f = |v: f64| (255.0 * (1.0 - v.abs())).round() as u8;
+                if t >= 0.0 {
+                    [255, f(t), f(t)]
+                } else {
+                    [f(t), f(t), 255]
+                }
+            };
+            c.put(x as i64, y as i64, col);
+        }
+    }
+    draw_defects(&mut c, range, defects, s);
+    // Dark outlines read better on the white map.
+    (w, h, c.rgb)
+}
+
+/// Writes a picture made by [`defects_picture`] or [`deviation_picture`].
+pub fn write_picture(path: &Path, picture: &(usize, usize, Vec<u8>)) -> Result<(), IoError> {
+    write_rgb_png(path, picture.0, picture.1, &picture.2)
+}
+
+/// Writes `report.json` (pretty JSON) into `dir`.
+pub fn write_report(dir: &Path, report: &serde_json::Value) -> Result<(), IoError> {
+    let text = serde_json::to_string_pretty(report).unwrap_or_default();
+    write_atomic(&dir.join("report.json"), text.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cloud::write_range;
+    use proptest::prelude::*;
+
+    fn sample() -> RangeImage {
+        RangeImage {
+            origin_mm: [-1.0, 2.0],
+            spacing_mm: [0.2, 0.25],
+            width: 4,
+            height: 3,
+            z: vec![
+                1.0,
+                2.0,
+                f32::NAN,
+                4.0,
+                5.0,
+                6.0,
+                7.0,
+                8.0,
+                9.0,
+                10.0,
+                11.0,
+                12.0,
+            ],
+        }
+    }
+
+    #[test]
+    fn a_written_range_reads_back() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let r = sample();
+        write_range(dir.path(), &r, serde_json::json!({})).expect("write");
+        let back = read_range(dir.path()).expect("read");
+        assert_eq!(back.origin_mm, r.origin_mm);
+        assert_eq!(back.spacing_mm, r.spacing_mm);
+        assert_eq!((back.width, back.height), (4, 3));
+        assert!(back.z[2].is_nan() && back.z[11] == 12.0);
+    }
+
+    #[test]
+    fn broken_range_files_name_the_field() {
+        let dir = tempfile::tempdir().expect("tmp");
+        write_range(dir.path(), &sample(), serde_json::json!({})).expect("write");
+        let p = dir.path().join("range.json");
+        let good = std::fs::read_to_string(&p).expect("json");
+        let cases = [
+            (good.replace("\"width\": 4", "\"width\": 5"), "range.tiff"),
+            (good.replace("\"width\": 4", "\"width\": -4"), "width"),
+            (
+                good.replace("\"file\": \"range.tiff\"", "\"file\": \"../x.tiff\""),
+                "file",
+            ),
+            ("{".to_string(), "range.json:1"),
+        ];
+        for (text, needle) in cases {
+            let e = range_from_json(&p, &text).expect_err(needle);
+            assert!(e.to_string().contains(needle), "{needle}: {e}");
+        }
+        let sp = good.replacen("0.2,", "0.0,", 1);
+        let e = range_from_json(&p, &sp).expect_err("zero spacing");
+        assert!(e.to_string().contains("spacing_mm"), "{e}");
+    }
+
+    proptest! {
+        #[test]
+        fn arbitrary_json_never_panics(text in ".{0,300}") {
+            let _ = range_from_json(Path::new("/nonexistent/range.json"), &text);
+        }
+
+        #[test]
+        fn mutated_range_json_never_panics(cut in 0usize..400, byte in any::<u8>()) {
+            let doc = serde_json::json!({"file": "range.tiff", "width": 4, "height": 3, "origin_mm": [0.0, 0.0],
+                "spacing_mm": [0.2, 0.2]}).to_string();
+            let mut b = doc.into_bytes();
+            let k = cut % b.len();
+            b[k] = byte;
+            let _ = range_from_json(Path::new("/nonexistent/range.json"), &String::from_utf8_lossy(&b));
+        }
+    }
+}

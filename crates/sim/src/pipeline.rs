@@ -1,0 +1,105 @@
+//! The measuring chain on simulated frames, in memory: a calibration fitted from rendered plate images, and scans
+//! of a scene through [`stripe3d_core::scan::Scanner`] — the same code `stripe3d calibrate` and `stripe3d scan`
+//! run, without files in between. Benchmarks and ground-truth tests use it.
+
+use crate::{RenderOptions, Scene, SimError, Simulator};
+use stripe3d_core::Sensor;
+use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
+use stripe3d_core::calibrate::{Calibration, CalibrationParams, PlaneImage, calibrate};
+use stripe3d_core::code::CodingParams;
+use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
+use stripe3d_core::scan::{Scanner, range_image};
+
+/// Plate heights of the simulated calibration, mm: every stripe of the paper's set-up is seen at three of them.
+pub const CALIBRATION_HEIGHTS_MM: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 30.0, 35.0];
+
+/// The extraction every simulated scan uses: Steger's detector, the most accurate (`stripe3d bench accuracy`).
+pub fn extract_params() -> ExtractParams {
+    ExtractParams {
+        method: Method::Steger,
+        ..ExtractParams::default()
+    }
+}
+
+/// Calibrates `sensor` from rendered plate images at [`CALIBRATION_HEIGHTS_MM`] (the empty belt for 0).
+pub fn calibrate_sensor(sensor: &Sensor, seed: u64) -> Result<Calibration, SimError> {
+    let mut ex = Extractor::new(extract_params())?;
+    let mut images = Vec::new();
+    for (i, &z) in CALIBRATION_HEIGHTS_MM.iter().enumerate() {
+        let scene = if z == 0.0 {
+            Scene::empty_belt()
+        } else {
+            Scene::covering_plate(z)
+        };
+        let opts = RenderOptions {
+            seed: seed.wrapping_add(i as u64),
+            ..RenderOptions::default()
+        };
+        let frame = Simulator::new(sensor, &scene, opts)?.render(0, 0.0);
+        let mut e = Extraction::default();
+        ex.extract_into(frame.image.view(), &mut e);
+        images.push(PlaneImage {
+            name: format!("plate at {z} mm"),
+            height_mm: z,
+            points: e.points,
+        });
+    }
+    Ok(calibrate(sensor, &images, &CalibrationParams::default())?)
+}
+
+/// Frames a scan needs so that every stripe sweeps one stripe pitch plus `extra` frames (the bands of
+/// neighbouring stripes then overlap and the range image has no empty seams).
+pub fn frames_for_sweep(sensor: &Sensor, extra: usize) -> usize {
+    let conveyor = sensor.conveyor.clone().unwrap_or_default();
+    let step = conveyor.speed_mm_s / conveyor.fps;
+    if step > 0.0 {
+        (sensor.laser.pitch_mm / step).ceil() as usize + extra
+    } else {
+        1
+    }
+}
+
+/// One simulated scan: its profiles, range image and the simulator (for the truth).
+pub struct SimulatedScan {
+    /// Triangulated profiles in frame order.
+    pub profiles: Vec<Profile>,
+    /// The range image on the requested grid.
+    pub range: RangeImage,
+    /// The simulator that rendered the frames (true height field and defects).
+    pub simulator: Simulator,
+}
+
+/// Renders `frames` frames of `scene` (travel from the sensor's conveyor), and scans them with the full model on a
+/// grid of `grid_mm`; coding allows the calibrated heights widened as `stripe3d scan` does by default.
+pub fn scan_scene(
+    sensor: &Sensor,
+    cal: &Calibration,
+    scene: &Scene,
+    frames: usize,
+    opts: RenderOptions,
+    grid_mm: [f64; 2],
+) -> Result<SimulatedScan, SimError> {
+    let simulator = Simulator::new(sensor, scene, opts)?;
+    let (lo, hi) = cal.coding_range_mm();
+    let coding = CodingParams {
+        min_height_mm: lo,
+        max_height_mm: hi,
+        ..CodingParams::default()
+    };
+    let mut scanner = Scanner::new(cal, extract_params(), coding, ModelKind::Full)?;
+    let conveyor = sensor.conveyor.clone().unwrap_or_default();
+    let mut profiles = Vec::with_capacity(frames);
+    for k in 0..frames {
+        let travel = conveyor.travel_mm(k);
+        let frame = simulator.render(k, travel);
+        let mut p = Profile::default();
+        scanner.profile_into(frame.image.view(), k, travel, cal, &mut p);
+        profiles.push(p);
+    }
+    let range = range_image(&profiles, grid_mm)?;
+    Ok(SimulatedScan {
+        profiles,
+        range,
+        simulator,
+    })
+}
