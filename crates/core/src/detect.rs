@@ -390,28 +390,48 @@ fn distance_to(w: usize, h: usize, outside: impl Fn(usize) -> bool) -> Vec<f32> 
 /// Dilation (`grow`) or erosion of a mask by a (2r+1)² square, as two separable passes with running counts.
 fn morph(w: usize, h: usize, mask: &[bool], r: usize, grow: bool) -> Vec<bool> {
     // A cell of the result is `grow` when any cell of its window is `grow` (dilation: true; erosion: false).
-    let pass =
-        |src: &[bool], n: usize, lines: usize, at: &dyn Fn(usize, usize) -> usize| -> Vec<bool> {
-            let mut out = vec![!grow; w * h];
-            for line in 0..lines {
-                let mut count = 0usize;
-                for t in 0..n.min(r) {
-                    count += usize::from(src[at(line, t)] == grow);
-                }
-                for t in 0..n {
-                    if t + r < n {
-                        count += usize::from(src[at(line, t + r)] == grow);
-                    }
-                    if t > r {
-                        count -= usize::from(src[at(line, t - r - 1)] == grow);
-                    }
-                    out[at(line, t)] = if count > 0 { grow } else { !grow };
-                }
+    let mut rows = vec![!grow; w * h];
+    for j in 0..h {
+        let line = &mask[j * w..(j + 1) * w];
+        let mut count: usize = line[..r.min(w)].iter().filter(|&&m| m == grow).count();
+        for i in 0..w {
+            if i + r < w {
+                count += usize::from(line[i + r] == grow);
             }
-            out
-        };
-    let rows = pass(mask, w, h, &|line, t| line * w + t);
-    pass(&rows, h, w, &|line, t| t * w + line)
+            if i > r {
+                count -= usize::from(line[i - r - 1] == grow);
+            }
+            if count > 0 {
+                rows[j * w + i] = grow;
+            }
+        }
+    }
+    // Columns, all at once, row by row (cache-friendly).
+    let mut out = vec![!grow; w * h];
+    let mut count = vec![0usize; w];
+    for j in 0..r.min(h) {
+        for (c, &m) in count.iter_mut().zip(&rows[j * w..(j + 1) * w]) {
+            *c += usize::from(m == grow);
+        }
+    }
+    for j in 0..h {
+        if j + r < h {
+            for (c, &m) in count.iter_mut().zip(&rows[(j + r) * w..(j + r + 1) * w]) {
+                *c += usize::from(m == grow);
+            }
+        }
+        if j > r {
+            for (c, &m) in count.iter_mut().zip(&rows[(j - r - 1) * w..(j - r) * w]) {
+                *c -= usize::from(m == grow);
+            }
+        }
+        for (o, &c) in out[j * w..(j + 1) * w].iter_mut().zip(&count) {
+            if c > 0 {
+                *o = grow;
+            }
+        }
+    }
+    out
 }
 
 /// Morphological closing of a mask by a (2r+1)² square: fills gaps up to 2r cells wide.
@@ -524,7 +544,7 @@ fn fit_bell(samples: &[(f64, f64, f64)], init: BellFit) -> Option<BellFit> {
         samples
             .iter()
             .map(|&(x, y, z)| {
-                let d = (x - p.centre[0]).hypot(y - p.centre[1]);
+                let d = ((x - p.centre[0]).powi(2) + (y - p.centre[1]).powi(2)).sqrt();
                 (z - p.offset - p.amplitude * bell(d, p.radius)).powi(2)
             })
             .sum()
@@ -538,7 +558,7 @@ fn fit_bell(samples: &[(f64, f64, f64)], init: BellFit) -> Option<BellFit> {
         let mut jtr = Vector5::<f64>::zeros();
         for &(x, y, z) in samples {
             let (ux, uy) = (x - p.centre[0], y - p.centre[1]);
-            let d = ux.hypot(uy);
+            let d = (ux * ux + uy * uy).sqrt();
             let b = bell(d, p.radius);
             let r = z - p.offset - p.amplitude * b;
             let mut jac = Vector5::new(b, 0.0, 0.0, 0.0, 1.0);

@@ -2,9 +2,10 @@
 //!
 //! The algorithms of stripe3d, with no I/O at all: borrowed image views ([`image`]), stripe extraction
 //! ([`extract`]), stripe coding ([`code`]), calibration from plate images ([`calibrate`]), triangulation
-//! ([`triangulate`]), profiles and range grids ([`accumulate`]), the sensor geometry and the conventions every
-//! crate shares ([`sensor`]), and the fuzzy rule bases of the paper ([`rules`]). Later stages (characterization,
-//! detection) will live here as modules named after the stage.
+//! ([`triangulate`]), profiles and range grids ([`accumulate`]), frames to profiles to range images ([`scan`]),
+//! reference surfaces, deviation and curvature ([`characterize`]), defects found, named and measured ([`detect`]),
+//! the sensor geometry and the conventions every crate shares ([`sensor`]), and the fuzzy rule bases of the paper
+//! ([`rules`]).
 //!
 //! Conventions (see `DESIGN.md`): millimetres, seconds, radians; world frame z up from the belt, x along conveyor
 //! travel, right-handed, origin on the belt below the camera's optical centre; the camera looks straight down with

@@ -3,7 +3,7 @@
 //!
 //! - [`RuleBase::SinglePeak`]: the paper's single-peak detector (rules 1-4 of section 4).
 //! - [`RuleBase::StripeCoding`]: the stripe-coding rules (stripe-code rules 1-5).
-//! - [`RuleBase::Surface`]: surface characterization (dent, bump, hole; surface rules 1-3).
+//! - [`RuleBase::Surface`]: surface characterization (dent, bump, hole: surface rules 1-3; plus scratch and edge chip).
 
 use stripe3d_fuzzy::{Engine, FuzzyError, fll};
 

@@ -168,9 +168,9 @@ impl FullModel {
 /// quadratics in the normalised row r = (v − cy) / fy: height = A(r) − B(r) · u with A = k · u_belt and B = k.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LinearStripe {
-    /// A(r) = a[0] + a[1] r + a[2] r², mm.
+    /// `A(r) = a[0] + a[1] r + a[2] r²`, mm.
     pub a: [f64; 3],
-    /// B(r) = b[0] + b[1] r + b[2] r², mm per pixel.
+    /// `B(r) = b[0] + b[1] r + b[2] r²`, mm per pixel.
     pub b: [f64; 3],
 }
 
