@@ -43,6 +43,13 @@ pub enum BenchCommand {
         #[arg(long)]
         verbose: bool,
     },
+    /// The paper's performance table (lateral and depth resolution, depth range, scanned area, profiling rate,
+    /// time per depth image), measured on the simulated set-up, beside the paper's figures (Markdown table).
+    Sensor {
+        /// Timed repetitions of the depth image.
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+    },
     /// Extraction speed on your own frames: decodes them once, extracts for a few seconds.
     Throughput {
         /// Grey images (PNG, PGM, TIFF).
@@ -64,6 +71,7 @@ pub enum BenchCommand {
 pub fn run(cmd: &BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Accuracy { frames } => accuracy(*frames),
+        BenchCommand::Sensor { repeats } => crate::sensor_bench::bench_sensor(*repeats),
         BenchCommand::Defects {
             parts,
             clean,

@@ -6,6 +6,7 @@ mod extract;
 mod fuzzy;
 mod inspect;
 mod scan;
+mod sensor_bench;
 mod simulate;
 
 use anyhow::Result;
