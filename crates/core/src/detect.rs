@@ -725,24 +725,26 @@ pub fn detect(
         });
     }
     // The part running out of the measured area.
+    // Only the two outermost rows and columns can touch.
+    let band_rows = (0..h.min(2)).chain(h.saturating_sub(2).max(2)..h);
+    let band_cols = (0..w.min(2)).chain(w.saturating_sub(2).max(2)..w);
+    let row_hit = |j: usize| (0..w).any(|i| on_part(j * w + i));
+    let col_hit = |i: usize| (0..h).any(|j| on_part(j * w + i));
     let mut touches = Vec::new();
-    for j in 0..h {
-        for i in 0..w {
-            if !on_part(j * w + i) {
-                continue;
-            }
-            if j <= 1 && !touches.contains(&"top (+y)") {
-                touches.push("top (+y)");
-            }
-            if j + 2 >= h && !touches.contains(&"bottom (−y)") {
-                touches.push("bottom (−y)");
-            }
-            if i <= 1 && !touches.contains(&"start of the scan (−x)") {
-                touches.push("start of the scan (−x)");
-            }
-            if i + 2 >= w && !touches.contains(&"end of the scan (+x)") {
-                touches.push("end of the scan (+x)");
-            }
+    for j in band_rows {
+        let side = if j <= 1 { "top (+y)" } else { "bottom (−y)" };
+        if !touches.contains(&side) && row_hit(j) {
+            touches.push(side);
+        }
+    }
+    for i in band_cols {
+        let side = if i <= 1 {
+            "start of the scan (−x)"
+        } else {
+            "end of the scan (+x)"
+        };
+        if !touches.contains(&side) && col_hit(i) {
+            touches.push(side);
         }
     }
     if !touches.is_empty() {
