@@ -152,7 +152,7 @@ fn reference_json(r: &ReferenceInfo) -> Value {
             "theta_rad": g.theta_rad,
             "dz_mm": g.dz_mm,
             "centre_mm": g.centre_mm,
-            "mean_clipped_difference_mm": g.rms_mm,
+            "mean_clipped_difference_mm": g.mean_difference_mm,
             "overlap": g.overlap,
         }),
     }

@@ -4,17 +4,10 @@
 use anyhow::Result;
 use std::time::Instant;
 use stripe3d_core::Sensor;
-use stripe3d_core::accumulate::{ModelKind, Profile};
-use stripe3d_core::code::CodingParams;
-use stripe3d_core::scan::{Scanner, range_image};
-use stripe3d_sim::pipeline::{calibrate_sensor, extract_params, frames_for_sweep};
+use stripe3d_core::accumulate::Profile;
+use stripe3d_core::scan::range_image;
+use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scanner};
 use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
-
-/// Median of a list (sorted in place).
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 /// Runs `stripe3d bench sensor`.
 pub fn bench_sensor(repeats: usize) -> Result<()> {
@@ -35,14 +28,9 @@ pub fn bench_sensor(repeats: usize) -> Result<()> {
     let rendered: Vec<Frame> = (0..frames)
         .map(|k| sim.render(k, conveyor.travel_mm(k)))
         .collect();
-    let (lo, hi) = cal.coding_range_mm();
-    let coding = CodingParams {
-        min_height_mm: lo,
-        max_height_mm: hi,
-        ..CodingParams::default()
-    };
+    let hi = cal.coding_range_mm().1;
     let grid = crate::scan::default_grid(&sensor);
-    let mut scanner = Scanner::new(&cal, extract_params(), coding, ModelKind::Full)?;
+    let mut scanner = scanner(&cal)?;
     // Processing time of one depth image (every frame of one sweep: extraction to range image), one core.
     let mut times = Vec::new();
     let mut profiles: Vec<Profile> = Vec::new();
@@ -58,7 +46,7 @@ pub fn bench_sensor(repeats: usize) -> Result<()> {
         range = Some(range_image(&profiles, grid)?);
         times.push(t.elapsed().as_secs_f64());
     }
-    let seconds = median(&mut times);
+    let seconds = crate::defects::percentile(&mut times, 0.5);
     let Some(range) = range else {
         anyhow::bail!("no depth image was made");
     };

@@ -338,8 +338,9 @@ pub struct Registration {
     pub dz_mm: f64,
     /// Centre of rotation (the scan part's centre), mm.
     pub centre_mm: [f64; 2],
-    /// Robust RMS height difference after registration, mm.
-    pub rms_mm: f64,
+    /// Mean height difference after registration (each cell clipped at 1 mm, cells off the golden part count
+    /// 1 mm), mm.
+    pub mean_difference_mm: f64,
     /// Share of the scan's part cells that land on the golden part.
     pub overlap: f64,
 }
@@ -513,7 +514,7 @@ pub fn register(
         theta_rad: 0.0,
         dz_mm: 0.0,
         centre_mm: centre,
-        rms_mm: f64::NAN,
+        mean_difference_mm: f64::NAN,
         overlap: 0.0,
     };
     let start = best;
@@ -573,7 +574,7 @@ pub fn register(
     let (cost, dz, overlap) = registration_cost(golden, &fine, &best, belt, &mut scratch);
     best.dz_mm = dz;
     best.overlap = overlap;
-    best.rms_mm = cost;
+    best.mean_difference_mm = cost;
     if overlap < params.min_overlap {
         return Err(CoreError::Inspection {
             message: format!(

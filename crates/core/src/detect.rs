@@ -442,8 +442,8 @@ fn closing(w: usize, h: usize, mask: &[bool], r: usize) -> Vec<bool> {
 /// Morphological opening (3 x 3) of a mask: removes structures one or two cells thin (the walls of a hole seen in
 /// perspective land as such slivers inside it) and keeps everything broader unchanged.
 fn opening(w: usize, h: usize, mask: &[bool]) -> Vec<bool> {
-    let out = morph(w, h, &morph(w, h, mask, 1, false), 1, true);
-    out.iter().zip(mask).map(|(&o, &m)| o && m).collect()
+    // Every cell of the dilated erosion lies in the window of an eroded cell, whose window is all in the mask.
+    morph(w, h, &morph(w, h, mask, 1, false), 1, true)
 }
 
 /// Per row, the [first, last] column inside the convex hull of `cells` (cell coordinates); None for empty rows.

@@ -47,6 +47,23 @@ pub fn calibrate_sensor(sensor: &Sensor, seed: u64) -> Result<Calibration, SimEr
     Ok(calibrate(sensor, &images, &CalibrationParams::default())?)
 }
 
+/// The scanner every simulated scan uses: Steger extraction, the full model, and the heights stripe coding allows
+/// by default for this calibration (as `stripe3d scan` does).
+pub fn scanner(cal: &Calibration) -> Result<Scanner, SimError> {
+    let (lo, hi) = cal.coding_range_mm();
+    let coding = CodingParams {
+        min_height_mm: lo,
+        max_height_mm: hi,
+        ..CodingParams::default()
+    };
+    Ok(Scanner::new(
+        cal,
+        extract_params(),
+        coding,
+        ModelKind::Full,
+    )?)
+}
+
 /// Frames a scan needs so that every stripe sweeps one stripe pitch plus `extra` frames (the bands of
 /// neighbouring stripes then overlap and the range image has no empty seams).
 pub fn frames_for_sweep(sensor: &Sensor, extra: usize) -> usize {
@@ -80,13 +97,7 @@ pub fn scan_scene(
     grid_mm: [f64; 2],
 ) -> Result<SimulatedScan, SimError> {
     let simulator = Simulator::new(sensor, scene, opts)?;
-    let (lo, hi) = cal.coding_range_mm();
-    let coding = CodingParams {
-        min_height_mm: lo,
-        max_height_mm: hi,
-        ..CodingParams::default()
-    };
-    let mut scanner = Scanner::new(cal, extract_params(), coding, ModelKind::Full)?;
+    let mut scanner = scanner(cal)?;
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
     let mut profiles = Vec::with_capacity(frames);
     for k in 0..frames {
