@@ -43,6 +43,22 @@ pub enum BenchCommand {
         #[arg(long)]
         verbose: bool,
     },
+    /// The knowledge base on simulated batches: the diagnosis of batches with seeded process faults, and the defect
+    /// F1 on a held-out batch before and after learning from a simulated operator's feedback.
+    Knowledge {
+        /// Parts per diagnosis batch, and labelled parts learned from.
+        #[arg(long, default_value_t = 50)]
+        parts: usize,
+        /// Held-out parts scored before and after learning.
+        #[arg(long, default_value_t = 50)]
+        held_out: usize,
+        /// Seed of the batches.
+        #[arg(long, default_value_t = 11)]
+        seed: u64,
+        /// Range-image cell, mm.
+        #[arg(long, default_value_t = 0.1)]
+        grid_mm: f64,
+    },
     /// The paper's performance table (lateral and depth resolution, depth range, scanned area, profiling rate,
     /// time per depth image), measured on the simulated set-up, beside the paper's figures (Markdown table).
     Sensor {
@@ -72,6 +88,12 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Accuracy { frames } => accuracy(*frames),
         BenchCommand::Sensor { repeats } => crate::sensor_bench::bench_sensor(*repeats),
+        BenchCommand::Knowledge {
+            parts,
+            held_out,
+            seed,
+            grid_mm,
+        } => crate::learning_bench::bench_knowledge(*parts, *held_out, *seed, *grid_mm),
         BenchCommand::Defects {
             parts,
             clean,

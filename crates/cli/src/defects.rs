@@ -9,6 +9,7 @@ use stripe3d_core::accumulate::RangeImage;
 use stripe3d_core::calibrate::Calibration;
 use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
 use stripe3d_core::detect::{Defect, DetectParams, SurfaceRules, inspect};
+use stripe3d_sim::batch::{Match, PartOutcome, match_defects};
 use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scan_scene};
 use stripe3d_sim::{DefectTruth, RenderOptions, Scene};
 
@@ -19,65 +20,6 @@ const TARGET_KIND: f64 = 0.98;
 const TARGET_CENTROID_MM: f64 = 0.5;
 const TARGET_AREA: f64 = 0.15;
 const TARGET_DEPTH_MM: f64 = 0.03;
-
-/// One truth defect and what was found for it.
-#[derive(Debug, Clone)]
-pub struct Match {
-    /// The truth.
-    pub truth: DefectTruth,
-    /// The found defect matched to it.
-    pub found: Option<Defect>,
-}
-
-/// The outcome on one part.
-#[derive(Debug, Clone, Default)]
-pub struct PartOutcome {
-    /// Truth defects with their matches.
-    pub matches: Vec<Match>,
-    /// Found defects that match no truth.
-    pub false_defects: Vec<Defect>,
-    /// Inspection warnings.
-    pub warnings: Vec<String>,
-}
-
-/// Matches found defects to the truth: nearest first, within the truth's radius (at least 1 mm), one to one.
-pub fn match_defects(truth: &[DefectTruth], found: &[Defect]) -> PartOutcome {
-    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
-    for (ti, t) in truth.iter().enumerate() {
-        for (fi, f) in found.iter().enumerate() {
-            let d = (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm);
-            if d <= (t.diameter_mm / 2.0).max(1.0) {
-                pairs.push((d, ti, fi));
-            }
-        }
-    }
-    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut t_used = vec![None; truth.len()];
-    let mut f_used = vec![false; found.len()];
-    for (_, ti, fi) in pairs {
-        if t_used[ti].is_none() && !f_used[fi] {
-            t_used[ti] = Some(fi);
-            f_used[fi] = true;
-        }
-    }
-    PartOutcome {
-        matches: truth
-            .iter()
-            .zip(&t_used)
-            .map(|(t, f)| Match {
-                truth: t.clone(),
-                found: f.map(|k| found[k].clone()),
-            })
-            .collect(),
-        false_defects: found
-            .iter()
-            .zip(&f_used)
-            .filter(|(_, u)| !**u)
-            .map(|(f, _)| f.clone())
-            .collect(),
-        warnings: Vec::new(),
-    }
-}
 
 /// Inspects a range image of a plate against a fitted plane with the shipped rules and default parameters.
 pub fn inspect_plate(range: &RangeImage) -> Result<(Vec<Defect>, Vec<String>)> {

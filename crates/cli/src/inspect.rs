@@ -14,10 +14,14 @@ use stripe3d_core::characterize::{
 };
 use stripe3d_core::detect::{DetectParams, Detection, Inspection, SurfaceRules, inspect};
 use stripe3d_io::files::{prepare_dir, read_text};
+use stripe3d_io::history::{CandidateRecord, History, InspectionRecord, default_path};
+use stripe3d_io::knowledge::{kb_root_of, read_kb};
 use stripe3d_io::report::{
     defects_picture, deviation_picture, read_range, write_picture, write_report,
 };
 use stripe3d_io::{read_calibration, read_sensor};
+use stripe3d_kb::reason::{frame_origin, part_facts, recurrence};
+use stripe3d_kb::{Assessment, KnowledgeBase, assess};
 
 /// Shape of the fitted reference surface.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -41,9 +45,23 @@ pub struct InspectArgs {
     /// top surface is fitted (see --shape).
     #[arg(long, value_name = "DIR")]
     pub reference: Option<PathBuf>,
-    /// Product description from the knowledge base (nominal model, tolerances).
+    /// Product from the knowledge base: its file (`products/NAME.toml` in a knowledge-base folder) or its name in
+    /// --kb. Its method sets the reference, rules and thresholds; the verdict, diagnosis and trace follow its
+    /// standards, zones, designed features and process.
+    #[arg(long, value_name = "FILE|NAME")]
+    pub product: Option<String>,
+    /// Knowledge-base folder [default: the folder holding --product FILE, else the shipped example].
+    #[arg(long, value_name = "DIR")]
+    pub kb: Option<PathBuf>,
+    /// Inspection history database [default: $STRIPE3D_DB, else ~/.local/share/stripe3d/history.sqlite].
     #[arg(long, value_name = "FILE")]
-    pub product: Option<PathBuf>,
+    pub db: Option<PathBuf>,
+    /// Do not record the inspection in the history.
+    #[arg(long, conflicts_with = "db")]
+    pub no_history: bool,
+    /// Part identifier for the history [default: made from the time].
+    #[arg(long, value_name = "ID")]
+    pub part_id: Option<String>,
     /// Output folder: report.json, defects.png, deviation.png (and the scan's files when frames are given).
     #[arg(long)]
     pub out: PathBuf,
@@ -51,15 +69,15 @@ pub struct InspectArgs {
     /// its range.json.
     #[arg(required = true, value_name = "FRAME")]
     pub frames: Vec<PathBuf>,
-    /// Shape of the fitted reference surface (without --reference).
-    #[arg(long, value_enum, default_value = "plane")]
-    pub shape: ShapeArg,
+    /// Shape of the fitted reference surface (without --reference) [default: the product method's, else plane].
+    #[arg(long, value_enum)]
+    pub shape: Option<ShapeArg>,
     /// Surface rule base (FLL) to use instead of the shipped rules/surface.fll.
     #[arg(long, value_name = "FILE.fll")]
     pub rules: Option<PathBuf>,
-    /// Smallest deviation that starts a defect, mm.
-    #[arg(long, default_value_t = DetectParams::default().seed_mm)]
-    pub threshold_mm: f64,
+    /// Smallest deviation that starts a defect, mm [default: the product method's, else 0.05].
+    #[arg(long, value_name = "MM")]
+    pub threshold_mm: Option<f64>,
     /// Conveyor position of each frame in mm, one per line [default: speed and fps of sensor.toml].
     #[arg(long)]
     pub encoder: Option<PathBuf>,
@@ -158,12 +176,102 @@ fn reference_json(r: &ReferenceInfo) -> Value {
     }
 }
 
-/// Builds the report of a finished inspection.
-pub fn report_json(range: &RangeImage, i: &Inspection, input: &str) -> Value {
+/// The knowledge a product inspection runs with.
+pub struct ProductContext {
+    /// The knowledge base.
+    pub kb: KnowledgeBase,
+    /// Its folder (None: the shipped example).
+    pub kb_dir: Option<PathBuf>,
+    /// The product's name.
+    pub name: String,
+}
+
+impl ProductContext {
+    fn kb_label(&self) -> String {
+        format!(
+            "{} v{} ({})",
+            self.kb.manifest.name,
+            self.kb.manifest.version,
+            self.kb_dir
+                .as_ref()
+                .map_or("shipped example".to_string(), |d| d.display().to_string())
+        )
+    }
+}
+
+/// Resolves `--product FILE|NAME` and `--kb DIR`.
+pub fn load_product(
+    product: Option<&str>,
+    kb_dir: Option<&Path>,
+) -> Result<Option<ProductContext>> {
+    let Some(value) = product else {
+        if let Some(d) = kb_dir {
+            bail!(
+                "--kb {}: give the product to inspect with --product NAME",
+                d.display()
+            );
+        }
+        return Ok(None);
+    };
+    let as_file = Path::new(value);
+    let (kb, dir, name) = if as_file.is_file() {
+        let dir = match kb_dir {
+            Some(d) => d.to_path_buf(),
+            None => kb_root_of(as_file).with_context(|| {
+                format!(
+                    "--product {value}: no kb.toml in the folders above it; a product file lives in the products/                      folder of a knowledge base (or give --kb DIR)"
+                )
+            })?,
+        };
+        let kb = read_kb(&dir)?;
+        let stem = as_file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        (kb, Some(dir), stem)
+    } else if value.contains('/') || value.ends_with(".toml") {
+        bail!("--product {value}: no such file (give a product file, or a product name with --kb)");
+    } else {
+        match kb_dir {
+            Some(d) => (read_kb(d)?, Some(d.to_path_buf()), value.to_string()),
+            None => (stripe3d_kb::shipped()?, None, value.to_string()),
+        }
+    };
+    kb.product_context(&name)
+        .with_context(|| format!("--product {value}"))?;
+    Ok(Some(ProductContext {
+        kb,
+        kb_dir: dir,
+        name,
+    }))
+}
+
+/// Builds the report of a finished inspection (with the knowledge base's verdict when a product was given).
+pub fn report_json(
+    range: &RangeImage,
+    i: &Inspection,
+    input: &str,
+    product: Option<(&ProductContext, &Assessment)>,
+) -> Value {
     let d = &i.detection;
-    let (decision, reason) = verdict(d);
+    let (decision, reason) = match product {
+        Some((_, a)) => (
+            a.decision.name(),
+            a.trace.first().cloned().unwrap_or_default(),
+        ),
+        None => {
+            let (v, r) = verdict(d);
+            (v, r)
+        }
+    };
     let cell = range.spacing_mm[0] * range.spacing_mm[1];
-    json!({
+    let mut defects: Vec<Value> = d
+        .defects
+        .iter()
+        .enumerate()
+        .map(|(n, x)| defect_json(n, x))
+        .collect();
+    let mut report = json!({
         "format": "stripe3d-report",
         "version": 1,
         "generator": format!("stripe3d {}", env!("CARGO_PKG_VERSION")),
@@ -171,7 +279,7 @@ pub fn report_json(range: &RangeImage, i: &Inspection, input: &str) -> Value {
         "input": input,
         "verdict": decision,
         "verdict_reason": reason,
-        "defects": d.defects.iter().enumerate().map(|(n, x)| defect_json(n, x)).collect::<Vec<_>>(),
+        "defects": [],
         "unmeasured": d.unmeasured.iter().map(|u| json!({
             "x_mm": u.centroid_mm[0], "y_mm": u.centroid_mm[1], "area_mm2": u.area_mm2, "reason": u.reason,
         })).collect::<Vec<_>>(),
@@ -181,6 +289,7 @@ pub fn report_json(range: &RangeImage, i: &Inspection, input: &str) -> Value {
             "part_area_mm2": d.part_cells as f64 * cell,
             "coverage": d.coverage,
             "noise_mm": i.maps.noise_mm,
+            "part_bbox_mm": d.part_bbox_mm,
         },
         "range": {
             "width": range.width, "height": range.height,
@@ -193,7 +302,43 @@ pub fn report_json(range: &RangeImage, i: &Inspection, input: &str) -> Value {
                        magenta hole, cyan scratch, orange edge chip, white anomaly), labelled number + initial. \
                        deviation.png: blue below the reference, red above, full colour at 5 x the detection threshold.",
         },
-    })
+    });
+    if let Some((ctx, a)) = product {
+        for x in &a.defects {
+            if let Some(Value::Object(o)) = defects.get_mut(x.index) {
+                o.insert("product_xy_mm".into(), json!(x.product_xy_mm));
+                o.insert("zone".into(), json!(x.zone));
+                o.insert("decision".into(), json!(x.decision.name()));
+                o.insert("reasons".into(), json!(x.reasons));
+                o.insert("causes".into(), json!(x.causes));
+            }
+        }
+        for f in &a.features {
+            if let Some(Value::Object(o)) = f.defect_index.and_then(|k| defects.get_mut(k)) {
+                o.insert("designed".into(), json!(f.name));
+                o.insert("decision".into(), json!("accept"));
+            }
+        }
+        if let Value::Object(o) = &mut report {
+            o.insert("product".into(), json!(ctx.name));
+            o.insert(
+                "knowledge_base".into(),
+                json!({
+                    "name": ctx.kb.manifest.name,
+                    "version": ctx.kb.manifest.version,
+                    "folder": ctx.kb_dir.as_ref().map(|d| d.display().to_string()),
+                }),
+            );
+            o.insert("diagnosis".into(), json!(a.diagnosis));
+            o.insert("trace".into(), json!(a.trace));
+            o.insert("features".into(), json!(a.features));
+            o.insert("product_frame_origin_mm".into(), json!(a.frame_origin_mm));
+        }
+    }
+    if let Value::Object(o) = &mut report {
+        o.insert("defects".into(), Value::Array(std::mem::take(&mut defects)));
+    }
+    report
 }
 
 fn error_report(message: &str, input: &str) -> Value {
@@ -210,22 +355,55 @@ fn error_report(message: &str, input: &str) -> Value {
     })
 }
 
+/// What `stripe3d inspect` concluded.
+pub struct InspectOutcome {
+    /// The measurements.
+    pub inspection: Inspection,
+    /// The knowledge base's verdict (with a product).
+    pub assessment: Option<Assessment>,
+    /// Id in the history.
+    pub history_id: Option<i64>,
+}
+
+/// Parts of the same product looked at for recurring defects.
+const RECENT_PARTS: usize = 20;
+
 /// Runs `stripe3d inspect`.
-pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
-    if let Some(p) = &args.product {
-        bail!(
-            "--product {}: product models come with the knowledge base, which this build does not have yet; inspect \
-             against the part's own fitted surface (default) or a golden scan (--reference DIR)",
-            p.display()
-        );
+pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
+    let ctx = load_product(args.product.as_deref(), args.kb.as_deref())?;
+    let method = match &ctx {
+        Some(c) => Some(c.kb.product_context(&c.name)?.2.clone()),
+        None => None,
+    };
+    let threshold_mm = args
+        .threshold_mm
+        .or(method.as_ref().map(|m| m.surface.threshold_mm))
+        .unwrap_or(DetectParams::default().seed_mm);
+    if !(threshold_mm.is_finite() && threshold_mm > 0.0) {
+        bail!("--threshold-mm {threshold_mm}: give a positive height in mm");
     }
-    if !(args.threshold_mm.is_finite() && args.threshold_mm > 0.0) {
-        bail!(
-            "--threshold-mm {}: give a positive height in mm",
-            args.threshold_mm
-        );
+    if let Some(m) = &method {
+        if m.surface.fitted_shape().is_none() && args.reference.is_none() && args.shape.is_none() {
+            bail!(
+                "product `{}` is inspected with method `{}`, which compares parts with a golden scan: give one with \
+                 --reference DIR (or override with --shape plane)",
+                ctx.as_ref().map_or("", |c| c.name.as_str()),
+                m.name
+            );
+        }
     }
-    let mut rules = load_rules(args.rules.as_deref())?;
+    let mut rules = match (&args.rules, &ctx, &method) {
+        (Some(p), _, _) => load_rules(Some(p))?,
+        (None, Some(c), Some(m)) => c.kb.surface_rules(m)?,
+        _ => load_rules(None)?,
+    };
+    // The history is opened first: a bad database fails before a long scan.
+    let mut history = if args.no_history {
+        None
+    } else {
+        let path = args.db.clone().unwrap_or_else(default_path);
+        Some(History::open(&path)?)
+    };
     let golden = match &args.reference {
         Some(p) => Some(read_range(p).with_context(|| format!("--reference {}", p.display()))?),
         None => None,
@@ -251,18 +429,24 @@ pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
         })?;
         let frames = frame_list(&args.frames)?;
         let travel = travels(&sensor, args.encoder.as_deref(), frames.len())?;
-        let grid = match args.grid_mm {
+        let grid = match args
+            .grid_mm
+            .or(method.as_ref().and_then(|m| m.scan.grid_mm))
+        {
             Some(g) if g.is_finite() && g > 0.0 => [g, g],
             Some(g) => bail!("--grid-mm {g}: give a positive size in mm"),
             None => default_grid(&sensor),
         };
+        let estimator = method
+            .as_ref()
+            .map_or("steger".to_string(), |m| m.scan.extraction.clone());
         let range_mm = cal.coding_range_mm();
         let res: ScanResult = scan_frames(
             &sensor,
             &cal,
             &frames,
             &travel,
-            "steger",
+            &estimator,
             ModelKind::Full,
             range_mm,
             grid,
@@ -270,17 +454,27 @@ pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
         write_scan(&args.out, &res, &frames, &travel, ModelKind::Full, range_mm)?;
         (res.range, format!("{} frames", frames.len()))
     };
+    let shape = match args.shape {
+        Some(ShapeArg::Plane) => ReferenceShape::Plane,
+        Some(ShapeArg::Quadratic) => ReferenceShape::Quadratic,
+        None => method
+            .as_ref()
+            .and_then(|m| m.surface.fitted_shape())
+            .unwrap_or(ReferenceShape::Plane),
+    };
     let source = match &golden {
         Some(g) => ReferenceSource::Golden(g),
-        None => ReferenceSource::Fit(match args.shape {
-            ShapeArg::Plane => ReferenceShape::Plane,
-            ShapeArg::Quadratic => ReferenceShape::Quadratic,
-        }),
+        None => ReferenceSource::Fit(shape),
     };
     let params = DetectParams {
-        seed_mm: args.threshold_mm,
+        seed_mm: threshold_mm,
         // The default pair is 0.05 / 0.02 mm: growth at 40% of the seed threshold.
-        grow_mm: 0.4 * args.threshold_mm,
+        grow_mm: 0.4 * threshold_mm,
+        min_confidence: method
+            .as_ref()
+            .map_or(DetectParams::default().min_confidence, |m| {
+                m.surface.min_confidence
+            }),
         ..DetectParams::default()
     };
     let started = Instant::now();
@@ -304,7 +498,31 @@ pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
         }
     };
     let d = &inspection.detection;
-    write_report(&args.out, &report_json(&range, &inspection, &input))?;
+    let assessment = match &ctx {
+        Some(c) => {
+            let origin = frame_origin(d);
+            let recent = match &history {
+                Some(h) => h.recent_defects(&c.name, RECENT_PARTS)?,
+                None => Vec::new(),
+            };
+            let rec: Vec<f64> = d
+                .defects
+                .iter()
+                .map(|x| {
+                    recurrence(
+                        &recent,
+                        x.kind,
+                        [x.centroid_mm[0] - origin[0], x.centroid_mm[1] - origin[1]],
+                    )
+                })
+                .collect();
+            let facts = part_facts(&range, &inspection, rec);
+            Some(assess(&c.kb, &c.name, d, &facts)?)
+        }
+        None => None,
+    };
+    let both = ctx.as_ref().zip(assessment.as_ref());
+    write_report(&args.out, &report_json(&range, &inspection, &input, both))?;
     write_picture(
         &args.out.join("defects.png"),
         &defects_picture(&range, &d.defects),
@@ -318,16 +536,35 @@ pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
             &d.defects,
         ),
     )?;
-    let (decision, reason) = verdict(d);
+    let (decision, reason) = match &assessment {
+        Some(a) => (
+            a.decision.name(),
+            a.trace.first().cloned().unwrap_or_default(),
+        ),
+        None => verdict(d),
+    };
     println!(
         "inspected {input} in {:.0} ms: {}",
         seconds * 1000.0,
         decision.to_uppercase()
     );
+    if let Some(c) = &ctx {
+        println!("  product {} with knowledge base {}", c.name, c.kb_label());
+    }
     println!("  {reason}");
+    let designed: Vec<Option<&str>> = (0..d.defects.len())
+        .map(|k| {
+            assessment.as_ref().and_then(|a| {
+                a.features
+                    .iter()
+                    .find(|f| f.defect_index == Some(k))
+                    .map(|f| f.name.as_str())
+            })
+        })
+        .collect();
     for (n, x) in d.defects.iter().enumerate() {
         println!(
-            "  {:>2}. {:<9} at ({:7.2}, {:7.2}) mm  area {:7.2} mm²  {} {:.3} mm  volume {:7.3} mm³  confidence {:.2}",
+            "  {:>2}. {:<9} at ({:7.2}, {:7.2}) mm  area {:7.2} mm²  {} {:.3} mm  volume {:7.3} mm³  confidence {:.2}{}",
             n + 1,
             x.kind.name(),
             x.centroid_mm[0],
@@ -340,8 +577,16 @@ pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
             },
             x.depth_mm,
             x.volume_mm3,
-            x.confidence
+            x.confidence,
+            designed[n]
+                .map(|f| format!("  (designed: {f})"))
+                .unwrap_or_default()
         );
+    }
+    if let Some(a) = &assessment {
+        for line in a.trace.iter().skip(1) {
+            println!("  | {line}");
+        }
     }
     for u in &d.unmeasured {
         println!(
@@ -352,9 +597,99 @@ pub fn run_inspect(args: &InspectArgs) -> Result<Inspection> {
     for w in &d.warnings {
         eprintln!("warning: {w}");
     }
+    let mut history_id = None;
+    if let Some(h) = &mut history {
+        let part_id = args.part_id.clone().unwrap_or_else(|| {
+            let t = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap_or_default();
+            format!("part-{}-{:03}", t.as_secs(), t.subsec_millis())
+        });
+        let dir = args
+            .out
+            .canonicalize()
+            .unwrap_or_else(|_| args.out.clone())
+            .display()
+            .to_string();
+        let record = history_record(
+            part_id,
+            Some(dir),
+            ctx.as_ref(),
+            &inspection,
+            assessment.as_ref(),
+            decision,
+        );
+        let id = h.record(&record)?;
+        println!(
+            "recorded as inspection {id} (part {}) in {}",
+            record.part_id,
+            h.path().display()
+        );
+        history_id = Some(id);
+    }
     println!(
         "wrote {}: report.json, defects.png (outlined defects), deviation.png (blue below, red above the reference)",
         args.out.display()
     );
-    Ok(inspection)
+    Ok(InspectOutcome {
+        inspection,
+        assessment,
+        history_id,
+    })
+}
+
+/// What the history keeps of an inspection.
+pub fn history_record(
+    part_id: String,
+    report_dir: Option<String>,
+    ctx: Option<&ProductContext>,
+    inspection: &Inspection,
+    assessment: Option<&Assessment>,
+    decision: &str,
+) -> InspectionRecord {
+    let d = &inspection.detection;
+    let context = ctx.and_then(|c| c.kb.product_context(&c.name).ok());
+    let designed_of = |k: usize| {
+        assessment.and_then(|a| {
+            a.features
+                .iter()
+                .find(|f| f.defect_index == Some(k))
+                .map(|f| f.name.clone())
+        })
+    };
+    InspectionRecord {
+        part_id,
+        product: ctx.map(|c| c.name.clone()),
+        process: context.map(|c| c.1.name.clone()),
+        method: context.map(|c| c.2.name.clone()),
+        kb_name: ctx.map(|c| c.kb.manifest.name.clone()),
+        kb_version: ctx.map(|c| c.kb.manifest.version),
+        verdict: decision.to_string(),
+        coverage: d.coverage,
+        diagnosis: assessment
+            .map(|a| {
+                a.diagnosis
+                    .iter()
+                    .map(|c| (c.cause.clone(), c.certainty))
+                    .collect()
+            })
+            .unwrap_or_default(),
+        trace: assessment.map(|a| a.trace.clone()).unwrap_or_default(),
+        report_dir,
+        frame_origin_mm: frame_origin(d),
+        candidates: d
+            .candidates
+            .iter()
+            .map(|c| CandidateRecord {
+                candidate: c.clone(),
+                defect_id: c.defect.map(|k| k + 1),
+                designed: c.defect.and_then(designed_of),
+                depth_mm: c.defect.and_then(|k| d.defects.get(k)).map(|x| x.depth_mm),
+                volume_mm3: c
+                    .defect
+                    .and_then(|k| d.defects.get(k))
+                    .map(|x| x.volume_mm3),
+            })
+            .collect(),
+    }
 }

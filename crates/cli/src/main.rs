@@ -5,6 +5,8 @@ mod defects;
 mod extract;
 mod fuzzy;
 mod inspect;
+mod knowledge;
+mod learning_bench;
 mod scan;
 mod sensor_bench;
 mod simulate;
@@ -39,6 +41,15 @@ enum Command {
     Scan(scan::ScanArgs),
     /// Find, classify and measure the defects of a scanned part (bumps, dents, holes, scratches, edge chips).
     Inspect(inspect::InspectArgs),
+    /// The knowledge base: check a product's design, show, diff versions, start your own from the example.
+    #[command(subcommand)]
+    Kb(knowledge::KbCommand),
+    /// Record an operator's judgement of an inspection (confirmed, false alarm, missed defect, reviewed).
+    Feedback(knowledge::FeedbackArgs),
+    /// List and filter past inspections; diagnose them as a batch.
+    History(knowledge::HistoryArgs),
+    /// Learn a new knowledge-base version from operators' feedback (cause priors, fuzzy rule parameters).
+    Learn(knowledge::LearnArgs),
     /// Measure accuracy (against the simulator's ground truth) and speed.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -58,6 +69,10 @@ fn main() -> std::process::ExitCode {
         Command::Calibrate(args) => scan::run_calibrate(&args).map(|_| ()),
         Command::Scan(args) => scan::run_scan(&args).map(|_| ()),
         Command::Inspect(args) => inspect::run_inspect(&args).map(|_| ()),
+        Command::Kb(cmd) => knowledge::run_kb(&cmd),
+        Command::Feedback(args) => knowledge::run_feedback(&args),
+        Command::History(args) => knowledge::run_history(&args),
+        Command::Learn(args) => knowledge::run_learn(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -287,7 +287,9 @@ pub fn demo(out: &Path) -> Result<()> {
     scan_demo(out, &sim_dir)?;
     inspect_demo(out, &sim_dir)?;
     println!(
-        "next stage (the knowledge base: tolerances, diagnosis, learning) will extend this demo as it lands."
+        "next: `stripe3d history --db {db}`, `stripe3d feedback ... --db {db}`, `stripe3d learn --product demo-bracket \
+         --db {db} --out my-kb-v2`, `stripe3d kb check demo-bracket` (see the README)",
+        db = out.join("history.sqlite").display()
     );
     Ok(())
 }
@@ -381,7 +383,7 @@ fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::sc
 /// The inspection stage of the demo: a golden part (the demo part without its defects) is rendered and scanned,
 /// and the demo scan is inspected against it; the defects found are compared with the ones put in.
 fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
-    use crate::inspect::{InspectArgs, ShapeArg, run_inspect};
+    use crate::inspect::{InspectArgs, run_inspect};
     use stripe3d_sim::scene::Feature;
     let mut golden = load_scene("demo")?;
     golden.name = "demo-golden".into();
@@ -390,6 +392,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
             f,
             Feature::Bump { .. }
                 | Feature::Dent { .. }
+                | Feature::Scratch { .. }
                 | Feature::Hole {
                     designed: false,
                     ..
@@ -414,26 +417,54 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
     })?;
     let golden_scan = out.join("golden/scan");
     scan_simulation(&golden_sim, &out.join("calib.toml"), &golden_scan)?;
-    println!("inspecting the demo scan against the golden scan ...");
-    let inspection = run_inspect(&InspectArgs {
+    println!(
+        "inspecting the demo scan as product `demo-bracket` of the shipped knowledge base, against the golden scan ..."
+    );
+    // The demo's history starts empty each run: the same part inspected again would count as a recurring defect.
+    for f in ["history.sqlite", "history.sqlite-wal", "history.sqlite-shm"] {
+        let p = out.join(f);
+        if p.exists() {
+            std::fs::remove_file(&p).with_context(|| format!("{}: cannot remove", p.display()))?;
+        }
+    }
+    let outcome = run_inspect(&InspectArgs {
         sensor: None,
         calib: None,
         reference: Some(golden_scan),
-        product: None,
+        product: Some("demo-bracket".into()),
+        kb: None,
+        db: Some(out.join("history.sqlite")),
+        no_history: false,
+        part_id: Some("demo-1".into()),
         out: out.join("inspection"),
         frames: vec![out.join("scan")],
-        shape: ShapeArg::Plane,
+        shape: None,
         rules: None,
-        threshold_mm: stripe3d_core::detect::DetectParams::default().seed_mm,
+        threshold_mm: None,
         encoder: None,
         grid_mm: None,
     })?;
+    let inspection = &outcome.inspection;
     let sensor = read_sensor(&sim_dir.join("sensor.toml"))?;
     let truth = Simulator::new(&sensor, &load_scene("demo")?, RenderOptions::ideal())?
         .defects()
         .to_vec();
-    let found = &inspection.detection.defects;
-    let outcome = crate::defects::match_defects(&truth, found);
+    // Designed features are not defects: score what the knowledge base calls defects.
+    let found: Vec<_> = match &outcome.assessment {
+        Some(a) => a
+            .defects
+            .iter()
+            .map(|x| inspection.detection.defects[x.index].clone())
+            .collect(),
+        None => inspection.detection.defects.clone(),
+    };
+    if let Some(id) = outcome.history_id {
+        println!(
+            "judge it: stripe3d feedback {id} --db {} --confirm N | --false-alarm N | --missed X,Y --kind K | --reviewed",
+            out.join("history.sqlite").display()
+        );
+    }
+    let outcome = stripe3d_sim::batch::match_defects(&truth, &found);
     for m in &outcome.matches {
         let t = &m.truth;
         match &m.found {

@@ -4,7 +4,10 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 fn stripe3d(args: &[&str]) -> Output {
+    // Inspections are recorded in the history: keep the tests' records out of the user's default database.
+    let db = std::env::temp_dir().join(format!("stripe3d-cli-tests-{}.sqlite", std::process::id()));
     Command::new(env!("CARGO_BIN_EXE_stripe3d"))
+        .env("STRIPE3D_DB", db)
         .args(args)
         .output()
         .expect("run stripe3d")
@@ -452,8 +455,18 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     .expect("json");
     assert_eq!(report["status"], "inspected");
     assert!(
-        ["accept", "reject", "incomplete"].contains(&report["verdict"].as_str().expect("verdict"))
+        ["accept", "rework", "reject", "incomplete"]
+            .contains(&report["verdict"].as_str().expect("verdict"))
     );
+    // The knowledge base's part of the report.
+    assert_eq!(report["product"], "demo-bracket");
+    assert_eq!(report["knowledge_base"]["version"], 1);
+    assert!(
+        report["trace"].as_array().is_some_and(|t| !t.is_empty()),
+        "{report}"
+    );
+    assert!(report["diagnosis"].is_array());
+    assert!(report["features"].is_array());
     let defects = report["defects"].as_array().expect("defects");
     assert!(
         !defects.is_empty(),
@@ -493,10 +506,28 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
         Some(0),
         "{report}"
     );
-    // Refusals: a product file (no knowledge base yet), frames without a calibration, a missing reference.
+    // Refusals: a product file that is not there, an unknown product, frames without a calibration, a missing
+    // reference.
     let o = stripe3d(&["inspect", "--product", "p.toml", "--out", &s("i1"), &golden]);
     assert!(!o.status.success());
-    assert!(stderr(&o).contains("knowledge base"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("p.toml"), "{}", stderr(&o));
+    let o = stripe3d(&["inspect", "--product", "teapot", "--out", &s("i1"), &golden]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("teapot") && stderr(&o).contains("cover-plate"),
+        "{}",
+        stderr(&o)
+    );
+    let o = stripe3d(&[
+        "inspect",
+        "--product",
+        "demo-bracket",
+        "--out",
+        &s("i1"),
+        &golden,
+    ]);
+    assert!(!o.status.success(), "a golden method without --reference");
+    assert!(stderr(&o).contains("--reference"), "{}", stderr(&o));
     let o = stripe3d(&["inspect", "--sensor", &sensor, "--out", &s("i2"), &frames]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--calib"), "{}", stderr(&o));
@@ -539,6 +570,226 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
             .expect("json");
     assert_eq!(report["status"], "error");
     assert_eq!(report["verdict"], "not-inspected");
+    knowledge_base_history_and_learning(&out);
+}
+
+/// The knowledge-base commands on the demo's output: history, feedback, learning, diff, design check, and their
+/// refusals.
+fn knowledge_base_history_and_learning(out: &Path) {
+    let s = |p: &str| out.join(p).to_str().expect("utf8").to_string();
+    let db = s("history.sqlite");
+    assert!(
+        out.join("history.sqlite").is_file(),
+        "the demo records its inspection"
+    );
+    let o = stripe3d(&["history", "--db", &db, "--format", "csv"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(csv.starts_with("id,time_utc,part_id,product,"), "{csv}");
+    assert!(csv.contains(",demo-1,demo-bracket,"), "{csv}");
+    // Five more inspections of the demo scan, each judged by an operator.
+    for k in 0..5 {
+        let o = stripe3d(&[
+            "inspect",
+            "--product",
+            "demo-bracket",
+            "--reference",
+            &s("golden/scan"),
+            "--db",
+            &db,
+            "--part-id",
+            &format!("again-{k}"),
+            "--out",
+            &s(&format!("again-{k}")),
+            &s("scan"),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let text = String::from_utf8_lossy(&o.stdout).into_owned();
+        let id = text
+            .split("recorded as inspection ")
+            .nth(1)
+            .and_then(|t| t.split_whitespace().next())
+            .expect("inspection id")
+            .to_string();
+        let o = stripe3d(&[
+            "feedback",
+            &id,
+            "--db",
+            &db,
+            "--reviewed",
+            "--operator",
+            "test",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let o = stripe3d(&[
+            "feedback",
+            &id,
+            "--db",
+            &db,
+            "--missed",
+            "1.5,-2",
+            "--kind",
+            "dent",
+            "--cause",
+            "shrinkage",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    // Bad feedback: no such defect, no such inspection, a place that is not a place, a kind nobody detects.
+    for (args, words) in [
+        (
+            vec!["feedback", "2", "--db", &db, "--confirm", "99"],
+            "no defect 99",
+        ),
+        (
+            vec!["feedback", "999", "--db", &db, "--reviewed"],
+            "no inspection 999",
+        ),
+        (
+            vec![
+                "feedback", "2", "--db", &db, "--missed", "here", "--kind", "dent",
+            ],
+            "X,Y",
+        ),
+        (
+            vec![
+                "feedback", "2", "--db", &db, "--missed", "1,2", "--kind", "crack",
+            ],
+            "crack",
+        ),
+        (vec!["feedback", "2", "--db", &db], "--reviewed"),
+    ] {
+        let o = stripe3d(&args);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(stderr(&o).contains(words), "{args:?}: {}", stderr(&o));
+    }
+    let o = stripe3d(&[
+        "history",
+        "--db",
+        &db,
+        "--product",
+        "demo-bracket",
+        "--diagnose",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("6 inspection(s)"));
+    assert!(
+        stderr(&o).contains("batch diagnosis over 6"),
+        "{}",
+        stderr(&o)
+    );
+    // Learning writes version 2 (the confirmed causes move the priors) into a new folder, never over one.
+    let v2 = s("kb-v2");
+    let o = stripe3d(&[
+        "learn",
+        "--product",
+        "demo-bracket",
+        "--db",
+        &db,
+        "--out",
+        &v2,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(text.contains("shrinkage"), "{text}");
+    assert!(out.join("kb-v2/kb.toml").is_file());
+    let o = stripe3d(&[
+        "learn",
+        "--product",
+        "demo-bracket",
+        "--db",
+        &db,
+        "--out",
+        &v2,
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("never overwritten"),
+        "{}",
+        stderr(&o)
+    );
+    let o = stripe3d(&["kb", "diff", "shipped", &v2]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let diff = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(diff.contains("kb.version: 1 -> 2"), "{diff}");
+    assert!(
+        diff.contains("process `die-casting`.cause[1].prior"),
+        "{diff}"
+    );
+    // The learned version inspects.
+    let o = stripe3d(&[
+        "inspect",
+        "--product",
+        "demo-bracket",
+        "--kb",
+        &v2,
+        "--reference",
+        &s("golden/scan"),
+        "--no-history",
+        "--out",
+        &s("with-v2"),
+        &s("scan"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Too little feedback to learn from.
+    let o = stripe3d(&[
+        "learn",
+        "--product",
+        "cover-plate",
+        "--db",
+        &db,
+        "--out",
+        &s("kb-none"),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("at least"),
+        "{}",
+        stderr(&o)
+    );
+    // A database that is not one.
+    std::fs::write(out.join("junk.sqlite"), vec![b'x'; 4096]).expect("junk");
+    let o = stripe3d(&["history", "--db", &s("junk.sqlite")]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("not a stripe3d history"),
+        "{}",
+        stderr(&o)
+    );
+    // Design assistance, and a knowledge base of your own that is broken.
+    let o = stripe3d(&["kb", "check", "demo-bracket"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        text.contains("gloss 0.35"),
+        "the demo bracket is glossy: {text}"
+    );
+    assert!(text.contains("shadow"), "its boss throws a shadow: {text}");
+    let mine = s("my-kb");
+    let o = stripe3d(&["kb", "init", &mine]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let product = out.join("my-kb/products/cover-plate.toml");
+    let t = std::fs::read_to_string(&product).expect("product");
+    std::fs::write(
+        &product,
+        t.replace("thickness_mm = 0.1", "thickness_mm = 0.01"),
+    )
+    .expect("edit");
+    let o = stripe3d(&["kb", "check", product.to_str().expect("utf8"), "--strict"]);
+    assert!(
+        !o.status.success(),
+        "a tolerance tighter than stamping holds"
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("tighter than process `stamping`"));
+    std::fs::write(
+        &product,
+        t.replace("process = \"stamping\"", "process = \"forging\""),
+    )
+    .expect("edit");
+    let o = stripe3d(&["kb", "show", "--kb", &mine]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("products/cover-plate.toml") && stderr(&o).contains("forging"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]

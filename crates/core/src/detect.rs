@@ -270,6 +270,103 @@ impl SurfaceRules {
     }
 }
 
+/// Where a candidate came from: which test of [`detect`] found it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum CandidateSource {
+    /// A region of the surface deviating from the reference.
+    Surface,
+    /// An enclosed region without data.
+    Gap,
+    /// Missing material at the outline (the belt seen where the part should be).
+    Edge,
+}
+
+impl CandidateSource {
+    /// Name in reports and the history database: `surface`, `gap`, `edge`.
+    pub fn name(self) -> &'static str {
+        match self {
+            CandidateSource::Surface => "surface",
+            CandidateSource::Gap => "gap",
+            CandidateSource::Edge => "edge",
+        }
+    }
+
+    /// The source of a name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Surface, Self::Gap, Self::Edge]
+            .into_iter()
+            .find(|s| s.name() == name)
+    }
+}
+
+/// Every region the rules weighed, reported or not: what learning from operators' feedback re-decides with tuned
+/// rules (see [`decide`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Candidate {
+    /// Which test found it.
+    pub source: CandidateSource,
+    /// Centre, mm (part coordinates).
+    pub centroid_mm: [f64; 2],
+    /// Area, mm².
+    pub area_mm2: f64,
+    /// The rules' inputs.
+    pub evidence: Evidence,
+    /// The rules' answer.
+    pub kind: DefectKind,
+    /// Its certainty.
+    pub confidence: f64,
+    /// Whether it became a [`Defect`].
+    pub reported: bool,
+    /// The index of that defect in [`Detection::defects`].
+    pub defect: Option<usize>,
+}
+
+/// The decision [`detect`] takes on one candidate: its kind and certainty, and whether it is reported as a defect.
+/// Surface regions are reported unless the rules cannot name them and they are smaller than
+/// [`DetectParams::min_anomaly_mm2`]; gaps only as holes; edge notches only as edge chips. Learning re-runs exactly
+/// this with tuned rules.
+pub fn decide(
+    source: CandidateSource,
+    evidence: &Evidence,
+    area_mm2: f64,
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+) -> Result<(DefectKind, f64, bool), CoreError> {
+    let (kind, confidence) = rules.classify(evidence, params.min_confidence)?;
+    let reported = match source {
+        CandidateSource::Surface => {
+            !(kind == DefectKind::Anomaly && area_mm2 < params.min_anomaly_mm2)
+        }
+        CandidateSource::Gap => kind == DefectKind::Hole,
+        CandidateSource::Edge => kind == DefectKind::EdgeChip,
+    };
+    Ok((kind, confidence, reported))
+}
+
+/// Decides a candidate (see [`decide`]) and keeps it in `out.candidates`.
+fn weigh(
+    out: &mut Detection,
+    source: CandidateSource,
+    centroid_mm: [f64; 2],
+    area_mm2: f64,
+    evidence: Evidence,
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+) -> Result<(DefectKind, f64, bool), CoreError> {
+    let (kind, confidence, reported) = decide(source, &evidence, area_mm2, rules, params)?;
+    out.candidates.push(Candidate {
+        source,
+        centroid_mm,
+        area_mm2,
+        evidence,
+        kind,
+        confidence,
+        reported,
+        defect: None,
+    });
+    Ok((kind, confidence, reported))
+}
+
 /// What detection found.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Detection {
@@ -283,6 +380,10 @@ pub struct Detection {
     pub part_cells: usize,
     /// Share of the expected outline that holds data.
     pub coverage: f64,
+    /// Bounding box of the part's measured surface x0, y0, x1, y1, mm (the product frame is centred on it).
+    pub part_bbox_mm: [f64; 4],
+    /// Every candidate the rules weighed, in the order found.
+    pub candidates: Vec<Candidate>,
 }
 
 /// Labels 4- or 8-connected components of cells where `member` holds; returns (labels, sizes); label 0 = none.
@@ -754,6 +855,24 @@ pub fn detect(
         ));
     }
     let part_cells: Vec<usize> = (0..w * h).filter(|&k| on_part(k)).collect();
+    out.part_bbox_mm = part_cells.iter().fold(
+        [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ],
+        |b, &k| {
+            let (x, y) = cell_xy(range, k % w, k / w);
+            let (hx, hy) = (range.spacing_mm[0] / 2.0, range.spacing_mm[1] / 2.0);
+            [
+                b[0].min(x - hx),
+                b[1].min(y - hy),
+                b[2].max(x + hx),
+                b[3].max(y + hy),
+            ]
+        },
+    );
     // Expected outline: the hull of the part, where the reference expects surface.
     let rows = hull_rows(w, h, &part_cells);
     let expected = |k: usize| -> bool {
@@ -837,9 +956,17 @@ pub fn detect(
             edge_notch_mm: 0.0,
             cells: cells.len(),
         };
-        let (kind, confidence) = rules.classify(&ev, params.min_confidence)?;
         let area = cells.len() as f64 * cell_area;
-        if kind == DefectKind::Anomaly && area < params.min_anomaly_mm2 {
+        let (kind, confidence, reported) = weigh(
+            &mut out,
+            CandidateSource::Surface,
+            s.centroid,
+            area,
+            ev,
+            rules,
+            params,
+        )?;
+        if !reported {
             // Small, steep and nameless: heights a wrong stripe index or a glint put there, not a surface.
             out.unmeasured.push(Unmeasured {
                 centroid_mm: s.centroid,
@@ -864,6 +991,9 @@ pub fn detect(
         };
         if matches!(kind, DefectKind::Bump | DefectKind::Dent) {
             measure_bell(range, maps, &s, *sign, peak, params.grow_mm, &mut d);
+        }
+        if let Some(c) = out.candidates.last_mut() {
+            c.defect = Some(out.defects.len());
         }
         out.defects.push(d);
     }
@@ -959,8 +1089,16 @@ pub fn detect(
             edge_notch_mm: 0.0,
             cells: cells.len(),
         };
-        let (kind, confidence) = rules.classify(&ev, params.min_confidence)?;
-        if kind != DefectKind::Hole {
+        let (kind, confidence, reported) = weigh(
+            &mut out,
+            CandidateSource::Gap,
+            s.centroid,
+            area,
+            ev,
+            rules,
+            params,
+        )?;
+        if !reported {
             out.unmeasured.push(Unmeasured {
                 centroid_mm: s.centroid,
                 area_mm2: area,
@@ -994,6 +1132,9 @@ pub fn detect(
             0.0
         };
         let reference = median(&mut refs);
+        if let Some(c) = out.candidates.last_mut() {
+            c.defect = Some(out.defects.len());
+        }
         out.defects.push(Defect {
             kind,
             centroid_mm: s.centroid,
@@ -1052,8 +1193,16 @@ pub fn detect(
                 }
                 continue;
             }
-            let (kind, confidence) = rules.classify(&ev, params.min_confidence)?;
-            if kind != DefectKind::EdgeChip {
+            let (kind, confidence, reported) = weigh(
+                &mut out,
+                CandidateSource::Edge,
+                s.centroid,
+                area,
+                ev,
+                rules,
+                params,
+            )?;
+            if !reported {
                 continue;
             }
             let mut refs: Vec<f64> = c
@@ -1062,6 +1211,9 @@ pub fn detect(
                 .filter(|v| v.is_finite())
                 .collect();
             let area = c.len() as f64 * cell_area;
+            if let Some(c) = out.candidates.last_mut() {
+                c.defect = Some(out.defects.len());
+            }
             out.defects.push(Defect {
                 kind,
                 centroid_mm: s.centroid,
@@ -1081,11 +1233,22 @@ pub fn detect(
             100.0 * out.coverage
         ));
     }
-    out.defects.sort_by(|a, b| {
+    // Stable report order (y descending, then x); candidates keep pointing at their defects.
+    let mut order: Vec<usize> = (0..out.defects.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (a, b) = (&out.defects[a], &out.defects[b]);
         b.centroid_mm[1]
             .total_cmp(&a.centroid_mm[1])
             .then(a.centroid_mm[0].total_cmp(&b.centroid_mm[0]))
     });
+    let mut new_index = vec![0; order.len()];
+    for (new, &old) in order.iter().enumerate() {
+        new_index[old] = new;
+    }
+    out.defects = order.iter().map(|&k| out.defects[k].clone()).collect();
+    for c in &mut out.candidates {
+        c.defect = c.defect.map(|k| new_index[k]);
+    }
     Ok(out)
 }
 

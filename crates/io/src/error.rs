@@ -46,6 +46,22 @@ pub enum IoError {
         /// What is wrong and what would be right.
         message: String,
     },
+    /// A knowledge base is contradictory, incomplete or malformed.
+    #[error("knowledge base {dir}: {message}")]
+    Knowledge {
+        /// Its folder.
+        dir: PathBuf,
+        /// File, entry and what is wrong.
+        message: String,
+    },
+    /// The inspection history database cannot be used.
+    #[error("{path}: {message}")]
+    Database {
+        /// The database file.
+        path: PathBuf,
+        /// What is wrong and what to do.
+        message: String,
+    },
     /// An image file is not a usable image.
     #[error("{path}: {message}")]
     Image {

@@ -1,7 +1,8 @@
 //! # stripe3d-io
 //!
 //! Everything of stripe3d that touches the outside world: `sensor.toml` and scene files (TOML), images
-//! (PNG 8/16-bit, PGM, TIFF), the simulator's ground truth (CSV, JSON, float32 TIFF) and safe file writing.
+//! (PNG 8/16-bit, PGM, TIFF), the simulator's ground truth (CSV, JSON, float32 TIFF), knowledge-base folders, the
+//! SQLite inspection history, and safe file writing.
 //!
 //! Every error names the file, and where it can the line and field, and says what to do. Files are written to a
 //! temporary name in the same folder and renamed into place, so a failed run never leaves a half-written file
@@ -13,7 +14,9 @@ pub mod cloud;
 pub mod config;
 pub mod error;
 pub mod files;
+pub mod history;
 pub mod images;
+pub mod knowledge;
 pub mod report;
 pub mod truth;
 

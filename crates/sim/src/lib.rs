@@ -11,10 +11,13 @@
 //!   patches acting as mirrors), speckle, optical blur, shot and read noise, quantisation and saturation; conveyor
 //!   motion; and for every frame the exact sub-pixel column where each row's camera ray meets the lit surface on
 //!   each sheet's centre plane.
+//! - [`batch`]: simulated production batches (plates from a process with a seeded fault), idealised range images of
+//!   them, and scoring found defects against the truth.
 //! - [`pipeline`]: the measuring chain on simulated frames in memory (calibration from rendered plates, scans through
 //!   `stripe3d_core::scan::Scanner`), for benchmarks and ground-truth tests.
 #![deny(missing_docs)]
 
+pub mod batch;
 pub mod evaluate;
 pub mod heightfield;
 pub mod pipeline;

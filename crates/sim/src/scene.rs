@@ -2,7 +2,7 @@
 //!
 //! A scene is plain data (it derives `serde` so that `stripe3d-io` can read it from TOML). Every length is in mm,
 //! in part coordinates (belt coordinates at frame 0). Features are applied in the order: plate, steps, bosses,
-//! bumps, dents, holes, albedo and gloss patches; each later feature works on the surface the earlier ones left.
+//! bumps, dents, scratches, holes, albedo and gloss patches; each later feature works on the surface the earlier ones left.
 
 use crate::SimError;
 use crate::heightfield::HeightField;
@@ -163,6 +163,21 @@ pub enum Feature {
         /// Greatest depth, mm.
         depth_mm: f64,
     },
+    /// A scratch or gouge: a groove along a segment with a raised-cosine cross-section and rounded ends.
+    Scratch {
+        /// Start x, mm.
+        x0_mm: f64,
+        /// Start y, mm.
+        y0_mm: f64,
+        /// End x, mm.
+        x1_mm: f64,
+        /// End y, mm.
+        y1_mm: f64,
+        /// Width of the groove, mm.
+        width_mm: f64,
+        /// Greatest depth, mm.
+        depth_mm: f64,
+    },
     /// A through-hole showing the belt: a defect unless `designed`.
     Hole {
         /// Centre x, mm.
@@ -207,7 +222,7 @@ pub enum Feature {
 /// The ground truth of one defect put into the scene.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DefectTruth {
-    /// `bump`, `dent` or `hole`.
+    /// `bump`, `dent`, `scratch` or `hole`.
     pub kind: String,
     /// Centroid x in part coordinates, mm.
     pub x_mm: f64,
@@ -589,6 +604,18 @@ impl Scene {
                     diameter_mm,
                     ..
                 } => disc(x_mm, y_mm, diameter_mm)?,
+                Feature::Scratch {
+                    x0_mm,
+                    y0_mm,
+                    x1_mm,
+                    y1_mm,
+                    width_mm,
+                    depth_mm,
+                } => {
+                    disc(x0_mm, y0_mm, width_mm)?;
+                    disc(x1_mm, y1_mm, width_mm)?;
+                    check(name("depth_mm"), depth_mm, depth_mm > 0.0, "must be > 0")?;
+                }
                 Feature::Albedo {
                     x0_mm,
                     y0_mm,
@@ -819,6 +846,45 @@ impl Scene {
                 depth_mm: amount.abs(),
                 volume_mm3: volume,
             });
+        }
+        for f in &self.features {
+            if let Feature::Scratch {
+                x0_mm,
+                y0_mm,
+                x1_mm,
+                y1_mm,
+                width_mm,
+                depth_mm,
+            } = *f
+            {
+                let r0 = width_mm / 2.0;
+                let (dx, dy) = (x1_mm - x0_mm, y1_mm - y0_mm);
+                let len2 = (dx * dx + dy * dy).max(1e-12);
+                let mut volume = 0.0;
+                for j in span(y0_mm.min(y1_mm) - r0, y0_mm.max(y1_mm) + r0, y0, ny) {
+                    for i in span(x0_mm.min(x1_mm) - r0, x0_mm.max(x1_mm) + r0, x0, nx) {
+                        let (x, y) = node(i, j);
+                        let t = (((x - x0_mm) * dx + (y - y0_mm) * dy) / len2).clamp(0.0, 1.0);
+                        let r = (x - x0_mm - t * dx).hypot(y - y0_mm - t * dy);
+                        let dz = depth_mm * bell(r, r0);
+                        if dz != 0.0 {
+                            let k = j * nx + i;
+                            h[k] = (f64::from(h[k]) - dz).max(0.0) as f32;
+                            volume += dz * cell_area;
+                        }
+                    }
+                }
+                let length = len2.sqrt();
+                defects.push(DefectTruth {
+                    kind: "scratch".into(),
+                    x_mm: (x0_mm + x1_mm) / 2.0,
+                    y_mm: (y0_mm + y1_mm) / 2.0,
+                    diameter_mm: length + width_mm,
+                    area_mm2: length * width_mm + std::f64::consts::PI * r0 * r0,
+                    depth_mm,
+                    volume_mm3: volume,
+                });
+            }
         }
         for f in &self.features {
             if let Feature::Hole {
