@@ -190,6 +190,12 @@ pub fn run_feedback(a: &FeedbackArgs) -> Result<()> {
         _ => bail!("give one of --confirm N, --false-alarm N, --missed X,Y or --reviewed"),
     };
     let path = a.db.clone().unwrap_or_else(default_path);
+    if !path.is_file() {
+        bail!(
+            "{}: no history there (inspections are recorded by `stripe3d inspect`; give --db FILE for another one)",
+            path.display()
+        );
+    }
     let mut h = History::open(&path)?;
     let id = h.add_feedback(&Feedback {
         inspection: a.inspection,

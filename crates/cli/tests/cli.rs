@@ -635,7 +635,9 @@ fn knowledge_base_history_and_learning(out: &Path) {
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
-    // Bad feedback: no such defect, no such inspection, a place that is not a place, a kind nobody detects.
+    // Bad feedback: no such defect, no such inspection, a place that is not a place, a kind nobody detects, no
+    // judgement, no database (none is created).
+    let nowhere = s("nowhere.sqlite");
     for (args, words) in [
         (
             vec!["feedback", "2", "--db", &db, "--confirm", "99"],
@@ -658,11 +660,16 @@ fn knowledge_base_history_and_learning(out: &Path) {
             "crack",
         ),
         (vec!["feedback", "2", "--db", &db], "--reviewed"),
+        (
+            vec!["feedback", "2", "--db", &nowhere, "--reviewed"],
+            "no history there",
+        ),
     ] {
         let o = stripe3d(&args);
         assert!(!o.status.success(), "{args:?}");
         assert!(stderr(&o).contains(words), "{args:?}: {}", stderr(&o));
     }
+    assert!(!out.join("nowhere.sqlite").exists());
     let o = stripe3d(&[
         "history",
         "--db",
