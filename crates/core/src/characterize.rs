@@ -182,6 +182,45 @@ pub fn cell_xy(range: &RangeImage, i: usize, j: usize) -> (f64, f64) {
     )
 }
 
+/// Cells between the samples of the noise estimate of [`surface_maps`].
+const NOISE_STRIDE: usize = 7;
+
+/// Mean of the finite values of each cell's 3 x 3 window, where the cell itself is finite and at least 5 of the 9
+/// are (NaN elsewhere). Separable: sums and counts along rows, then along columns.
+pub(crate) fn smooth3(w: usize, h: usize, v: &[f32]) -> Vec<f32> {
+    let mut rs = vec![0.0f32; w * h];
+    let mut rc = vec![0u8; w * h];
+    for j in 0..h {
+        let line = &v[j * w..(j + 1) * w];
+        for i in 0..w {
+            let (mut s, mut c) = (0.0f32, 0u8);
+            for &d in &line[i.saturating_sub(1)..(i + 2).min(w)] {
+                if d.is_finite() {
+                    s += d;
+                    c += 1;
+                }
+            }
+            rs[j * w + i] = s;
+            rc[j * w + i] = c;
+        }
+    }
+    let mut out = vec![f32::NAN; w * h];
+    for j in 0..h {
+        let (a, b) = (j.saturating_sub(1), (j + 2).min(h));
+        for i in 0..w {
+            let (mut s, mut c) = (0.0f32, 0u8);
+            for jj in a..b {
+                s += rs[jj * w + i];
+                c += rc[jj * w + i];
+            }
+            if c >= 5 && v[j * w + i].is_finite() {
+                out[j * w + i] = s / f32::from(c);
+            }
+        }
+    }
+    out
+}
+
 /// Median of a slice (reorders it); NaN when empty.
 pub(crate) fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
@@ -749,26 +788,11 @@ pub fn surface_maps(
             }
         })
         .collect();
-    let mut smoothed = vec![f32::NAN; w * h];
-    for j in 0..h {
-        for i in 0..w {
-            let (mut s, mut c) = (0.0f32, 0u32);
-            for jj in j.saturating_sub(1)..(j + 2).min(h) {
-                for ii in i.saturating_sub(1)..(i + 2).min(w) {
-                    let d = deviation[jj * w + ii];
-                    if d.is_finite() {
-                        s += d;
-                        c += 1;
-                    }
-                }
-            }
-            if c >= 5 && deviation[j * w + i].is_finite() {
-                smoothed[j * w + i] = s / c as f32;
-            }
-        }
-    }
+    let smoothed = smooth3(w, h, &deviation);
+    // The noise from every 7th cell: a robust spread needs tens of thousands of samples, not the whole grid.
     let mut abs: Vec<f64> = deviation
         .iter()
+        .step_by(NOISE_STRIDE)
         .filter(|d| d.is_finite())
         .map(|d| f64::from(d.abs()))
         .collect();
@@ -959,6 +983,38 @@ pub fn derivative_maps(range: &RangeImage, maps: &SurfaceMaps) -> DerivativeMaps
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// The separable 3 x 3 smoothing equals the direct window mean.
+        #[test]
+        fn separable_smoothing_equals_the_window_mean(
+            w in 1usize..12,
+            h in 1usize..12,
+            vals in proptest::collection::vec(proptest::option::of(-1.0f32..1.0), 144),
+        ) {
+            let v: Vec<f32> = (0..w * h).map(|k| vals[k].unwrap_or(f32::NAN)).collect();
+            let fast = smooth3(w, h, &v);
+            for j in 0..h {
+                for i in 0..w {
+                    let (mut s, mut c) = (0.0f32, 0u32);
+                    for jj in j.saturating_sub(1)..(j + 2).min(h) {
+                        for ii in i.saturating_sub(1)..(i + 2).min(w) {
+                            if v[jj * w + ii].is_finite() {
+                                s += v[jj * w + ii];
+                                c += 1;
+                            }
+                        }
+                    }
+                    let want = if c >= 5 && v[j * w + i].is_finite() { s / c as f32 } else { f32::NAN };
+                    let got = fast[j * w + i];
+                    proptest::prop_assert!(
+                        (want.is_nan() && got.is_nan()) || (want - got).abs() < 1e-5,
+                        "({}, {}): {} vs {}", i, j, got, want
+                    );
+                }
+            }
+        }
+    }
 
     /// A range image of `f` on a `w` x `h` grid of 0.2 mm cells starting at (−w/10, h/10).
     fn image(w: usize, h: usize, f: impl Fn(f64, f64) -> f64) -> RangeImage {
