@@ -80,7 +80,12 @@ pub struct FeedbackArgs {
     #[arg(long, value_name = "N", group = "judgement")]
     pub false_alarm: Option<usize>,
     /// A defect the inspection did not report, at X,Y mm (part coordinates, as in the report); needs --kind.
-    #[arg(long, value_name = "X,Y", group = "judgement")]
+    #[arg(
+        long,
+        value_name = "X,Y",
+        group = "judgement",
+        allow_hyphen_values = true
+    )]
     pub missed: Option<String>,
     /// The whole part was checked: what is reported and not otherwise judged is right.
     #[arg(long, group = "judgement")]
@@ -108,8 +113,8 @@ pub struct HistoryArgs {
     /// Only this product.
     #[arg(long)]
     pub product: Option<String>,
-    /// Only this verdict (accept, incomplete, rework, reject, ...).
-    #[arg(long)]
+    /// Only this verdict.
+    #[arg(long, value_parser = ["accept", "incomplete", "rework", "reject"])]
     pub verdict: Option<String>,
     /// Only this part.
     #[arg(long)]
@@ -236,6 +241,19 @@ pub fn run_history(a: &HistoryArgs) -> Result<()> {
             "{}: no history yet (inspections are recorded by `stripe3d inspect`; give --db FILE for another one)",
             path.display()
         );
+    }
+    if let Some(t) = &a.since {
+        // UTC times are stored as 2026-11-23T14:05:00Z and compared as text: accept a prefix of that form only.
+        let pattern = "dddd-dd-ddTdd:dd:ddZ";
+        let ok = t.len() >= 4
+            && t.len() <= pattern.len()
+            && t.chars().zip(pattern.chars()).all(|(c, p)| match p {
+                'd' => c.is_ascii_digit(),
+                _ => c == p,
+            });
+        if !ok {
+            bail!("--since {t}: give a UTC time as 2026-11-23, 2026-11-23T14 or 2026-11-23T14:05");
+        }
     }
     let h = History::open(&path)?;
     let rows = h.list(&Filter {

@@ -627,7 +627,7 @@ fn knowledge_base_history_and_learning(out: &Path) {
             "--db",
             &db,
             "--missed",
-            "1.5,-2",
+            "-1.5,-2",
             "--kind",
             "dent",
             "--cause",
@@ -670,6 +670,34 @@ fn knowledge_base_history_and_learning(out: &Path) {
         assert!(stderr(&o).contains(words), "{args:?}: {}", stderr(&o));
     }
     assert!(!out.join("nowhere.sqlite").exists());
+    for (args, words) in [
+        (
+            vec!["history", "--db", &db, "--since", "yesterday"],
+            "--since yesterday",
+        ),
+        (vec!["history", "--db", &db, "--verdict", "maybe"], "maybe"),
+    ] {
+        let o = stripe3d(&args);
+        assert!(
+            !o.status.success() && stderr(&o).contains(words),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+    }
+    let o = stripe3d(&[
+        "history",
+        "--db",
+        &db,
+        "--since",
+        "2000-01-01",
+        "--verdict",
+        "reject",
+        "--format",
+        "json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let listed: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert!(listed.as_array().is_some_and(|a| !a.is_empty()), "{listed}");
     let o = stripe3d(&[
         "history",
         "--db",

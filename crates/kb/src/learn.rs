@@ -361,6 +361,24 @@ pub fn update_priors(
             continue;
         }
         if let Some(p) = kb.processes.get_mut(&process) {
+            for name in counts.keys() {
+                if !p.causes.iter().any(|c| &c.name == name) {
+                    lines.push(format!(
+                        "process `{process}` has no cause `{name}` (named in {} feedback entries): not counted; add \
+                         it to processes/{process}.toml if it is real",
+                        counts[name]
+                    ));
+                }
+            }
+            let known: u64 = counts
+                .iter()
+                .filter(|(n, _)| p.causes.iter().any(|c| &c.name == *n))
+                .map(|(_, v)| v)
+                .sum();
+            if known == 0 {
+                continue;
+            }
+            let total = known;
             for c in &mut p.causes {
                 let n = counts.get(&c.name).copied().unwrap_or(0) as f64;
                 let new =
@@ -392,6 +410,38 @@ mod tests {
             edge_notch_mm: 0.0,
             cells: 500,
         }
+    }
+
+    #[test]
+    fn confirmed_causes_move_the_priors_and_unknown_ones_are_named() {
+        let mut kb = crate::shipped().expect("kb");
+        let mut counts = BTreeMap::new();
+        counts.insert(
+            "cover-plate".to_string(),
+            BTreeMap::from([
+                ("die-debris".to_string(), 10u64),
+                ("gremlins".to_string(), 3),
+            ]),
+        );
+        let lines = update_priors(&mut kb, &counts);
+        let stamping = &kb.processes["stamping"];
+        let prior = |n: &str| {
+            stamping
+                .causes
+                .iter()
+                .find(|c| c.name == n)
+                .map(|c| c.prior)
+        };
+        // (0.3 * 10 + 10) / (10 + 10) = 0.65; the others shrink: (0.3 * 10 + 0) / 20 = 0.15.
+        assert_eq!(prior("die-debris"), Some(0.65));
+        assert_eq!(prior("handling-damage"), Some(0.15));
+        assert!(
+            lines
+                .iter()
+                .any(|l| l.contains("gremlins") && l.contains("not counted")),
+            "{lines:?}"
+        );
+        assert!(kb.validate().is_ok());
     }
 
     #[test]

@@ -625,6 +625,7 @@ pub fn method_of<'a>(kb: &'a KnowledgeBase, product: &str) -> Result<&'a Method,
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::KnowledgeBase;
 
     #[test]
     fn certainty_factors_combine_as_mycin() {
@@ -634,6 +635,98 @@ mod tests {
         assert!((combine(0.3, 0.0) - 0.3).abs() < 1e-12);
         // Order does not matter.
         assert!((combine(combine(0.2, 0.7), -0.4) - combine(combine(-0.4, 0.7), 0.2)).abs() < 0.05);
+    }
+
+    fn defect(kind: DefectKind, x: f64, y: f64, area: f64, depth: f64) -> Defect {
+        Defect {
+            kind,
+            centroid_mm: [x, y],
+            bbox_mm: [x - 1.0, y - 1.0, x + 1.0, y + 1.0],
+            area_mm2: area,
+            depth_mm: depth,
+            volume_mm3: 1.0,
+            confidence: 0.8,
+            bottom_seen: false,
+            evidence: Default::default(),
+        }
+    }
+
+    #[test]
+    fn designed_holes_are_checked_and_uncovered_kinds_go_to_a_person() {
+        // The shipped knowledge base with the anomaly standard taken out of method stripes-11.
+        let mut files: Vec<crate::SourceFile> = crate::SHIPPED_FILES
+            .iter()
+            .map(|(p, t)| crate::SourceFile {
+                path: (*p).into(),
+                text: (*t).into(),
+            })
+            .collect();
+        for f in &mut files {
+            if f.path == "methods/stripes-11.toml" {
+                f.text = f.text.replace(
+                    "[[standard]]\nkind = \"anomaly\"\ndecision = \"rework\"\n",
+                    "",
+                );
+            }
+        }
+        let kb = KnowledgeBase::from_files(&files).expect("kb");
+        // The part's outline is offset by (5, 0): the product frame follows it.
+        let detection = Detection {
+            defects: vec![
+                // Mounting hole 1 at (-28, 18), 7 mm across: out of its ±0.4 mm tolerance.
+                defect(
+                    DefectKind::Hole,
+                    -23.0,
+                    18.0,
+                    std::f64::consts::PI * 3.5 * 3.5,
+                    10.0,
+                ),
+                // An anomaly outside the gasket seat: no standard covers it any more.
+                defect(DefectKind::Anomaly, 35.0, 25.0, 3.0, 0.4),
+            ],
+            coverage: 0.97,
+            part_bbox_mm: [-35.0, -30.0, 45.0, 30.0],
+            ..Detection::default()
+        };
+        let facts = PartFacts {
+            fitted_reference: true,
+            ..PartFacts::default()
+        };
+        let a = assess(&kb, "cover-plate", &detection, &facts).expect("assess");
+        assert_eq!(a.frame_origin_mm, [5.0, 0.0]);
+        assert_eq!(a.decision, Decision::Reject);
+        let status: Vec<&str> = a.features.iter().map(|f| f.status.as_str()).collect();
+        assert_eq!(status, ["out-of-tolerance", "missing"]);
+        assert_eq!(a.defects.len(), 1, "the designed hole is not a defect");
+        assert_eq!(a.defects[0].decision, Decision::Rework);
+        assert!(
+            a.defects[0].reasons[0].contains("no standard"),
+            "{:?}",
+            a.defects[0].reasons
+        );
+        assert!(
+            a.trace
+                .iter()
+                .any(|t| t.contains("`mounting hole 2`") && t.contains("missing"))
+        );
+        // Against a golden scan a designed hole cannot be seen as such: not called missing.
+        let golden = PartFacts::default();
+        let b = assess(
+            &kb,
+            "cover-plate",
+            &Detection {
+                defects: vec![],
+                ..detection
+            },
+            &golden,
+        )
+        .expect("assess");
+        assert!(
+            b.features.iter().all(|f| f.status == "not-checked"),
+            "{:?}",
+            b.features
+        );
+        assert_eq!(b.decision, Decision::Accept);
     }
 
     #[test]
