@@ -13,9 +13,9 @@ use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
 use stripe3d_core::calibrate::{
     Calibration, CalibrationParams, PlaneImage, calibrate, check_camera,
 };
-use stripe3d_core::code::{CodingParams, CodingStats};
+use stripe3d_core::code::{CodedFrame, CodingParams, CodingStats};
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
-use stripe3d_core::scan::{Scanner, range_image};
+use stripe3d_core::scan::{Scanner, profiles_of, range_image};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
@@ -315,12 +315,12 @@ pub fn scan_frames(
     );
     bar.set_message("scanning");
     let started = Instant::now();
-    let results: Vec<Result<(Profile, CodingStats)>> = frames
+    // Extraction and coding in parallel; reconciliation across frames and triangulation after (deterministic).
+    let results: Vec<Result<CodedFrame>> = frames
         .par_iter()
-        .enumerate()
         .map_init(
             || scanner.clone(),
-            |scanner, (k, path)| {
+            |scanner, path| {
                 let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
                 let (fw, fh) = frame.size();
                 if (fw as u32, fh as u32) != (w, h) {
@@ -330,25 +330,20 @@ pub fn scan_frames(
                         path.display()
                     );
                 }
-                let mut p = Profile::default();
-                let stats = match &frame {
-                    FrameData::U8(img) => scanner.profile_into(img.view(), k, travel[k], cal, &mut p),
-                    FrameData::U16(img) => scanner.profile_into(img.view(), k, travel[k], cal, &mut p),
-                };
+                let mut c = CodedFrame::default();
+                match &frame {
+                    FrameData::U8(img) => scanner.code_into(img.view(), &mut c),
+                    FrameData::U16(img) => scanner.code_into(img.view(), &mut c),
+                }
                 bar.inc(1);
-                Ok((p, stats))
+                Ok(c)
             },
         )
         .collect();
     bar.finish_and_clear();
+    let mut coded = results.into_iter().collect::<Result<Vec<_>>>()?;
+    let (profiles, stats, _) = profiles_of(&mut coded, travel, cal, model);
     let seconds = started.elapsed().as_secs_f64();
-    let mut profiles = Vec::with_capacity(frames.len());
-    let mut stats = CodingStats::default();
-    for r in results {
-        let (p, s) = r?;
-        stats.add(&s);
-        profiles.push(p);
-    }
     if profiles.iter().all(|p| p.points.is_empty()) {
         bail!(
             "nothing was measured in {} frames ({} stripe points found, none could be coded): check the exposure, \

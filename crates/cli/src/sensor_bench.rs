@@ -4,8 +4,8 @@
 use anyhow::Result;
 use std::time::Instant;
 use stripe3d_core::Sensor;
-use stripe3d_core::accumulate::Profile;
-use stripe3d_core::scan::range_image;
+use stripe3d_core::code::CodedFrame;
+use stripe3d_core::scan::{profiles_of, range_image};
 use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scanner};
 use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
 
@@ -33,16 +33,20 @@ pub fn bench_sensor(repeats: usize) -> Result<()> {
     let mut scanner = scanner(&cal)?;
     // Processing time of one depth image (every frame of one sweep: extraction to range image), one core.
     let mut times = Vec::new();
-    let mut profiles: Vec<Profile> = Vec::new();
     let mut range = None;
+    let travel: Vec<f64> = (0..rendered.len()).map(|k| conveyor.travel_mm(k)).collect();
     for _ in 0..repeats {
         let t = Instant::now();
-        profiles.clear();
-        for (k, f) in rendered.iter().enumerate() {
-            let mut p = Profile::default();
-            scanner.profile_into(f.image.view(), k, conveyor.travel_mm(k), &cal, &mut p);
-            profiles.push(p);
-        }
+        // As `stripe3d scan` does: extract and code every frame, reconcile across frames, triangulate, accumulate.
+        let mut coded: Vec<CodedFrame> = rendered
+            .iter()
+            .map(|f| {
+                let mut c = CodedFrame::default();
+                scanner.code_into(f.image.view(), &mut c);
+                c
+            })
+            .collect();
+        let profiles = profiles_of(&mut coded, &travel, &cal, scanner.model()).0;
         range = Some(range_image(&profiles, grid)?);
         times.push(t.elapsed().as_secs_f64());
     }

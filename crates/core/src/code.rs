@@ -188,8 +188,214 @@ impl CodingStats {
 pub struct Coding {
     /// One entry per input point, in the input's order: the stripe, or `None` when the point was dropped.
     pub stripes: Vec<Option<u16>>,
+    /// Per point, the labels its row could take nearly as cheaply as the best (the best first, then the
+    /// alternatives within [`CodingParams::segment_override_cost`]; `u16::MAX` pads): what [`reconcile`] may choose
+    /// from for a dropped point.
+    pub near: Vec<[u16; 3]>,
+    /// Per point, whether its own row settled its label by the margin (before segments voted).
+    pub row_confident: Vec<bool>,
     /// What happened to the points.
     pub stats: CodingStats,
+}
+
+/// One frame's extracted points and their coding, kept for [`reconcile`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CodedFrame {
+    /// The stripe points, sorted by row then column (as extraction gives them).
+    pub points: Vec<StripePoint>,
+    /// Their coding.
+    pub coding: Coding,
+}
+
+/// Parameters of [`reconcile`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TemporalParams {
+    /// Largest column change (px) between a point and the same stripe on the same row one frame later: the part
+    /// moves one frame step (0.5 mm in the paper's set-up) and a smooth surface moves the stripe by a fraction of a
+    /// pixel; a step of the surface (tens of pixels) ends the track.
+    pub link_px: f64,
+    /// Fewest coded points of a track that must agree on its label.
+    pub min_votes: usize,
+    /// Least share of the track's coded points that must agree.
+    pub min_share: f64,
+}
+
+impl Default for TemporalParams {
+    fn default() -> Self {
+        Self {
+            link_px: 1.0,
+            min_votes: 3,
+            min_share: 0.9,
+        }
+    }
+}
+
+/// Temporal reconciliation of a scan's coding (frames in travel order): a point is linked to the point of the next
+/// frame on the same row when each is the other's only neighbour within [`TemporalParams::link_px`] — the same stripe
+/// on the same surface, 0.5 mm further along — and linked points form tracks. A point the coder dropped as ambiguous
+/// takes its track's label when the track's coded points agree on it (at least `min_votes`, at least `min_share` of
+/// them) and the label is one its own row could nearly take; the row must stay ordered (labels growing with the
+/// column) or the point stays dropped. Returns how many points were recovered.
+///
+/// Where a stripe falls into a hole, the rows it leaves are read as well one stripe over, and the coder drops the
+/// other stripes' points there; the frames before and after saw the same stripes on the same surface and coded them.
+pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
+    fn find(parent: &mut [usize], mut a: usize) -> usize {
+        while parent[a] != a {
+            parent[a] = parent[parent[a]];
+            a = parent[a];
+        }
+        a
+    }
+    let offsets: Vec<usize> = frames
+        .iter()
+        .scan(0usize, |acc, f| {
+            let o = *acc;
+            *acc += f.points.len();
+            Some(o)
+        })
+        .collect();
+    let total: usize = frames.iter().map(|f| f.points.len()).sum();
+    let mut parent: Vec<usize> = (0..total).collect();
+    // The row runs of a frame's points: (row, start, end).
+    let rows_of = |f: &CodedFrame| -> Vec<(u32, usize, usize)> {
+        let mut out = Vec::new();
+        let mut i = 0;
+        while i < f.points.len() {
+            let r = f.points[i].row;
+            let mut j = i + 1;
+            while j < f.points.len() && f.points[j].row == r {
+                j += 1;
+            }
+            out.push((r, i, j));
+            i = j;
+        }
+        out
+    };
+    let sorted = |f: &CodedFrame| {
+        f.points.len() == f.coding.stripes.len()
+            && f.points
+                .windows(2)
+                .all(|w| w[0].row < w[1].row || (w[0].row == w[1].row && w[0].x <= w[1].x))
+    };
+    if !frames.iter().all(sorted) {
+        return 0;
+    }
+    let nearest = |pts: &[StripePoint], x: f64| -> Option<(usize, f64)> {
+        pts.iter()
+            .enumerate()
+            .map(|(k, p)| (k, (p.x - x).abs()))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    };
+    for k in 0..frames.len().saturating_sub(1) {
+        let (a, b) = (&frames[k], &frames[k + 1]);
+        let (ra, rb) = (rows_of(a), rows_of(b));
+        let mut q = 0;
+        for &(row, s, e) in &ra {
+            while q < rb.len() && rb[q].0 < row {
+                q += 1;
+            }
+            if q >= rb.len() || rb[q].0 != row {
+                continue;
+            }
+            let (pa, pb) = (&a.points[s..e], &b.points[rb[q].1..rb[q].2]);
+            for (i, p) in pa.iter().enumerate() {
+                let Some((j, d)) = nearest(pb, p.x) else {
+                    continue;
+                };
+                if d > params.link_px {
+                    continue;
+                }
+                // Mutual and unique: p is q's nearest, and no other point is within the link distance.
+                let mutual = nearest(pa, pb[j].x).is_some_and(|(ii, _)| ii == i);
+                let unique = pa
+                    .iter()
+                    .enumerate()
+                    .filter(|(ii, o)| *ii != i && (o.x - pb[j].x).abs() <= params.link_px)
+                    .count()
+                    == 0
+                    && pb
+                        .iter()
+                        .enumerate()
+                        .filter(|(jj, o)| *jj != j && (o.x - p.x).abs() <= params.link_px)
+                        .count()
+                        == 0;
+                if mutual && unique {
+                    let (x, y) = (
+                        find(&mut parent, offsets[k] + s + i),
+                        find(&mut parent, offsets[k + 1] + rb[q].1 + j),
+                    );
+                    if x != y {
+                        parent[x.max(y)] = x.min(y);
+                    }
+                }
+            }
+        }
+    }
+    // Votes per track: (label, count, first frame, last frame), few labels per track.
+    let mut votes: std::collections::HashMap<usize, Vec<(u16, usize, usize, usize)>> =
+        std::collections::HashMap::new();
+    for (k, f) in frames.iter().enumerate() {
+        for (i, l) in f.coding.stripes.iter().enumerate() {
+            // Only labels the point's own row settled vote: a label the segment vote gave can be a consistent
+            // misreading, and following it would only spread it.
+            if let Some(l) = *l
+                && f.coding.row_confident.get(i).copied().unwrap_or(false)
+            {
+                let root = find(&mut parent, offsets[k] + i);
+                let v = votes.entry(root).or_default();
+                match v.iter_mut().find(|x| x.0 == l) {
+                    Some(x) => {
+                        x.1 += 1;
+                        x.2 = x.2.min(k);
+                        x.3 = x.3.max(k);
+                    }
+                    None => v.push((l, 1, k, k)),
+                }
+            }
+        }
+    }
+    let mut recovered = 0;
+    for (k, f) in frames.iter_mut().enumerate() {
+        let rows = rows_of(f);
+        for &(_, s, e) in &rows {
+            for i in s..e {
+                if f.coding.stripes[i].is_some() {
+                    continue;
+                }
+                let near = f.coding.near.get(i).copied().unwrap_or([NO_LABEL; 3]);
+                if near[0] == NO_LABEL {
+                    continue;
+                }
+                let root = find(&mut parent, offsets[k] + i);
+                let Some(v) = votes.get(&root) else { continue };
+                let all: usize = v.iter().map(|x| x.1).sum();
+                let Some(&(w, c, first, last)) = v.iter().max_by_key(|x| x.1) else {
+                    continue;
+                };
+                // Interpolation only: the track codes the label before and after this frame.
+                if c < params.min_votes
+                    || (c as f64) < params.min_share * all as f64
+                    || !near.contains(&w)
+                    || first >= k
+                    || last <= k
+                {
+                    continue;
+                }
+                // The row must stay ordered.
+                let before = f.coding.stripes[s..i].iter().rev().flatten().next();
+                let after = f.coding.stripes[i + 1..e].iter().flatten().next();
+                if before.is_some_and(|&b| b >= w) || after.is_some_and(|&a| a <= w) {
+                    continue;
+                }
+                f.coding.stripes[i] = Some(w);
+                f.coding.stats.coded += 1;
+                f.coding.stats.ambiguous = f.coding.stats.ambiguous.saturating_sub(1);
+                recovered += 1;
+            }
+        }
+    }
+    recovered
 }
 
 /// A function of one or two inputs sampled on a regular grid, read back with (bi)linear interpolation and the
@@ -551,6 +757,10 @@ impl StripeCoder {
     pub fn code_into(&mut self, points: &[StripePoint], out: &mut Coding) {
         out.stripes.clear();
         out.stripes.resize(points.len(), None);
+        out.near.clear();
+        out.near.resize(points.len(), [NO_LABEL; 3]);
+        out.row_confident.clear();
+        out.row_confident.resize(points.len(), false);
         out.stats = CodingStats {
             points: points.len(),
             ..CodingStats::default()
@@ -962,6 +1172,19 @@ impl StripeCoder {
                 }
             };
             out.stripes[idx] = label;
+            let mut near = [NO_LABEL; 3];
+            if st.best != NO_LABEL {
+                near[0] = st.best;
+                let mut n = 1;
+                for &(l, d) in &st.alternatives {
+                    if l != NO_LABEL && d <= self.params.segment_override_cost as f32 {
+                        near[n] = l;
+                        n += 1;
+                    }
+                }
+            }
+            out.near[idx] = near;
+            out.row_confident[idx] = st.confident && st.best != NO_LABEL;
         }
         // Ordering: labels must grow with the column along every row; drop both sides of a violation.
         let mut i = 0;
@@ -1003,6 +1226,99 @@ impl StripeCoder {
                 None => out.stats.ambiguous += 1,
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod temporal_tests {
+    use super::*;
+
+    /// Frames of one row with stripes 0, 1, 2 at columns 100, 150, 200 (shifted by `drift` px per frame), every
+    /// point coded and row-confident.
+    fn frames(n: usize, drift: f64) -> Vec<CodedFrame> {
+        (0..n)
+            .map(|k| {
+                let points: Vec<StripePoint> = [100.0, 150.0, 200.0]
+                    .iter()
+                    .map(|&x| StripePoint {
+                        row: 7,
+                        x: x + drift * k as f64,
+                        intensity: 200.0,
+                        width: 6.0,
+                        score: 0.8,
+                    })
+                    .collect();
+                CodedFrame {
+                    coding: Coding {
+                        stripes: vec![Some(0), Some(1), Some(2)],
+                        near: vec![
+                            [0, NO_LABEL, NO_LABEL],
+                            [1, NO_LABEL, NO_LABEL],
+                            [2, NO_LABEL, NO_LABEL],
+                        ],
+                        row_confident: vec![true; 3],
+                        stats: CodingStats {
+                            points: 3,
+                            coded: 3,
+                            ..CodingStats::default()
+                        },
+                    },
+                    points,
+                }
+            })
+            .collect()
+    }
+
+    fn drop(f: &mut CodedFrame, i: usize, near: [u16; 3]) {
+        f.coding.stripes[i] = None;
+        f.coding.near[i] = near;
+        f.coding.row_confident[i] = false;
+        f.coding.stats.coded -= 1;
+        f.coding.stats.ambiguous += 1;
+    }
+
+    #[test]
+    fn a_dropped_point_between_agreeing_frames_takes_its_tracks_label() {
+        let mut f = frames(9, 0.3);
+        // The middle stripe is dropped in frames 3 and 4; its row could read it as 2 (cheapest) or 1.
+        drop(&mut f[3], 1, [2, 1, NO_LABEL]);
+        drop(&mut f[4], 1, [2, 1, NO_LABEL]);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 2);
+        assert_eq!(f[3].coding.stripes[1], Some(1));
+        assert_eq!(f[4].coding.stats.coded, 3);
+        assert_eq!(f[4].coding.stats.ambiguous, 0);
+    }
+
+    #[test]
+    fn reconciliation_never_extrapolates_jumps_or_guesses() {
+        // Dropped in the last frame: no coded point after it.
+        let mut f = frames(6, 0.0);
+        drop(&mut f[5], 1, [1, 2, NO_LABEL]);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        // A jump of 5 px between frames ends the track.
+        let mut f = frames(7, 5.0);
+        drop(&mut f[3], 1, [1, 2, NO_LABEL]);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        // The track's label is not one the row could take.
+        let mut f = frames(7, 0.0);
+        drop(&mut f[3], 1, [2, NO_LABEL, NO_LABEL]);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        // The label would break the row's order (its right neighbour was coded 1).
+        let mut f = frames(7, 0.0);
+        drop(&mut f[3], 1, [1, 2, NO_LABEL]);
+        f[3].coding.stripes[2] = Some(1);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        // Two candidates within the link distance: no link.
+        let mut f = frames(7, 0.0);
+        drop(&mut f[3], 1, [1, 2, NO_LABEL]);
+        f[3].points[2].x = 150.5;
+        f[3].points.sort_by(|a, b| a.x.total_cmp(&b.x));
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        // Frames whose points and coding disagree in length are left alone.
+        let mut f = frames(7, 0.0);
+        drop(&mut f[3], 1, [1, 2, NO_LABEL]);
+        f[2].coding.stripes.pop();
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
     }
 }
 

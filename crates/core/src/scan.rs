@@ -5,7 +5,9 @@
 use crate::CoreError;
 use crate::accumulate::{ModelKind, Profile, RangeGrid, RangeImage, RangeParams, profile_into};
 use crate::calibrate::Calibration;
-use crate::code::{Coding, CodingParams, CodingStats, StripeCoder};
+use crate::code::{
+    CodedFrame, Coding, CodingParams, CodingStats, StripeCoder, TemporalParams, reconcile,
+};
 use crate::extract::{ExtractParams, Extraction, Extractor};
 use crate::image::{ImageView, Pixel};
 
@@ -64,6 +66,55 @@ impl Scanner {
         );
         self.coding.stats
     }
+}
+
+impl Scanner {
+    /// Extracts and codes one frame into `out` (for [`profiles_of`], which reconciles the coding across frames).
+    pub fn code_into<T: Pixel>(&mut self, frame: ImageView<'_, T>, out: &mut CodedFrame) {
+        self.extractor.extract_into(frame, &mut self.extraction);
+        self.coder
+            .code_into(&self.extraction.points, &mut out.coding);
+        out.points.clear();
+        out.points.extend_from_slice(&self.extraction.points);
+    }
+
+    /// The model this scanner triangulates with.
+    pub fn model(&self) -> ModelKind {
+        self.model
+    }
+}
+
+/// A scan's coded frames (in travel order, `travel_mm[k]` for frame k) reconciled across frames (see
+/// [`reconcile`]) and triangulated into profiles; returns the profiles, the coding counts after reconciliation
+/// and the number of points reconciliation recovered.
+pub fn profiles_of(
+    frames: &mut [CodedFrame],
+    travel_mm: &[f64],
+    cal: &Calibration,
+    model: ModelKind,
+) -> (Vec<Profile>, CodingStats, usize) {
+    let recovered = reconcile(frames, &TemporalParams::default());
+    let mut stats = CodingStats::default();
+    let profiles = frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            stats.add(&f.coding.stats);
+            let mut p = Profile::default();
+            profile_into(
+                k,
+                travel_mm.get(k).copied().unwrap_or(0.0),
+                &f.points,
+                &f.coding,
+                &cal.full,
+                Some(&cal.linear),
+                model,
+                &mut p,
+            );
+            p
+        })
+        .collect();
+    (profiles, stats, recovered)
 }
 
 /// The range image of a scan's profiles (in frame order) on a grid of `spacing_mm`: samples of one stripe and row

@@ -6,9 +6,9 @@ use crate::{RenderOptions, Scene, SimError, Simulator};
 use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
 use stripe3d_core::calibrate::{Calibration, CalibrationParams, PlaneImage, calibrate};
-use stripe3d_core::code::CodingParams;
+use stripe3d_core::code::{CodedFrame, CodingParams};
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
-use stripe3d_core::scan::{Scanner, range_image};
+use stripe3d_core::scan::{Scanner, profiles_of, range_image};
 
 /// Plate heights of the simulated calibration, mm: every stripe of the paper's set-up is seen at three of them.
 pub const CALIBRATION_HEIGHTS_MM: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 30.0, 35.0];
@@ -99,14 +99,17 @@ pub fn scan_scene(
     let simulator = Simulator::new(sensor, scene, opts)?;
     let mut scanner = scanner(cal)?;
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
-    let mut profiles = Vec::with_capacity(frames);
+    let mut coded = Vec::with_capacity(frames);
+    let mut travel = Vec::with_capacity(frames);
     for k in 0..frames {
-        let travel = conveyor.travel_mm(k);
-        let frame = simulator.render(k, travel);
-        let mut p = Profile::default();
-        scanner.profile_into(frame.image.view(), k, travel, cal, &mut p);
-        profiles.push(p);
+        let t = conveyor.travel_mm(k);
+        let frame = simulator.render(k, t);
+        let mut c = CodedFrame::default();
+        scanner.code_into(frame.image.view(), &mut c);
+        coded.push(c);
+        travel.push(t);
     }
+    let (profiles, _, _) = profiles_of(&mut coded, &travel, cal, scanner.model());
     let range = range_image(&profiles, grid_mm)?;
     Ok(SimulatedScan {
         profiles,

@@ -129,3 +129,59 @@ fn a_tall_block_that_hides_four_stripes_is_coded() {
     );
     assert!(t.right_rate() >= 0.999, "{t:?}");
 }
+
+/// Temporal reconciliation on 22 consecutive frames (0.5 mm apart) of a plate with four defects, one a hole that
+/// makes the coder drop other stripes' points in its rows: the points it recovers are right.
+#[test]
+fn temporal_reconciliation_recovers_dropped_points_right() {
+    use stripe3d_core::code::{CodedFrame, TemporalParams, reconcile};
+    let sensor = Sensor::default();
+    let frames = render(&sensor, &Scene::defect_plate(19, 4), 22, 0.5);
+    let model = FullModel::nominal(&sensor);
+    let mut coder = StripeCoder::new(
+        &model,
+        sensor.camera.width,
+        sensor.camera.height,
+        CodingParams::default(),
+    )
+    .expect("coder");
+    let mut ex = Extractor::new(ExtractParams {
+        method: Method::Steger,
+        ..ExtractParams::default()
+    })
+    .expect("extractor");
+    let mut extraction = Extraction::default();
+    let mut coded = Vec::new();
+    for f in &frames {
+        let data: Vec<u8> = f.image.data().iter().map(|&v| v.min(255) as u8).collect();
+        let img = Image::from_vec(f.image.width(), f.image.height(), data).expect("image");
+        ex.extract_into(img.view(), &mut extraction);
+        let mut c = CodedFrame::default();
+        coder.code_into(&extraction.points, &mut c.coding);
+        c.points = extraction.points.clone();
+        coded.push(c);
+    }
+    let before: Vec<Vec<Option<u16>>> = coded.iter().map(|c| c.coding.stripes.clone()).collect();
+    let recovered = reconcile(&mut coded, &TemporalParams::default());
+    let (mut right, mut wrong) = (0, 0);
+    for ((c, f), b) in coded.iter().zip(&frames).zip(&before) {
+        for ((p, s), was) in c.points.iter().zip(&c.coding.stripes).zip(b) {
+            let (Some(s), None) = (s, was) else { continue };
+            let truth = f
+                .truth
+                .iter()
+                .filter(|q| q.row == p.row && (q.u - p.x).abs() <= 0.5)
+                .min_by(|a, b| (a.u - p.x).abs().total_cmp(&(b.u - p.x).abs()));
+            match truth {
+                Some(q) if q.stripe == u32::from(*s) => right += 1,
+                Some(_) => wrong += 1,
+                None => {}
+            }
+        }
+    }
+    eprintln!("reconciled: {recovered} recovered, {right} right, {wrong} wrong");
+    // Measured: 534 recovered, 532 right, 0 wrong (2 without a truth point).
+    assert!(recovered >= 300, "{recovered}");
+    assert_eq!(wrong, 0);
+    assert!(right + 10 >= recovered);
+}
