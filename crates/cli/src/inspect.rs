@@ -219,7 +219,8 @@ pub fn load_product(
             Some(d) => d.to_path_buf(),
             None => kb_root_of(as_file).with_context(|| {
                 format!(
-                    "--product {value}: no kb.toml in the folders above it; a product file lives in the products/                      folder of a knowledge base (or give --kb DIR)"
+                    "--product {value}: no kb.toml in the folders above it; a product file lives in the products/ \
+                     folder of a knowledge base (or give --kb DIR)"
                 )
             })?,
         };
