@@ -33,22 +33,32 @@ impl Tally {
     }
 }
 
-fn tally(sensor: &Sensor, frames: &[Frame], params: CodingParams) -> Tally {
+/// A coder on the nominal sensor model and a Steger extractor.
+fn coder_and_extractor(sensor: &Sensor, params: CodingParams) -> (StripeCoder, Extractor) {
     let model = FullModel::nominal(sensor);
-    let mut coder =
+    let coder =
         StripeCoder::new(&model, sensor.camera.width, sensor.camera.height, params).expect("coder");
-    let mut ex = Extractor::new(ExtractParams {
+    let ex = Extractor::new(ExtractParams {
         method: Method::Steger,
         ..ExtractParams::default()
     })
     .expect("extractor");
+    (coder, ex)
+}
+
+/// A rendered frame as the 8-bit image a camera would give.
+fn eight_bit(f: &Frame) -> Image<u8> {
+    let data: Vec<u8> = f.image.data().iter().map(|&v| v.min(255) as u8).collect();
+    Image::from_vec(f.image.width(), f.image.height(), data).expect("image")
+}
+
+fn tally(sensor: &Sensor, frames: &[Frame], params: CodingParams) -> Tally {
+    let (mut coder, mut ex) = coder_and_extractor(sensor, params);
     let mut extraction = Extraction::default();
     let mut coding = Coding::default();
     let mut t = Tally::default();
     for f in frames {
-        let data: Vec<u8> = f.image.data().iter().map(|&v| v.min(255) as u8).collect();
-        let img = Image::from_vec(f.image.width(), f.image.height(), data).expect("image");
-        ex.extract_into(img.view(), &mut extraction);
+        ex.extract_into(eight_bit(f).view(), &mut extraction);
         coder.code_into(&extraction.points, &mut coding);
         t.stats.add(&coding.stats);
         t.truth += f.truth.len();
@@ -137,25 +147,11 @@ fn temporal_reconciliation_recovers_dropped_points_right() {
     use stripe3d_core::code::{CodedFrame, TemporalParams, reconcile};
     let sensor = Sensor::default();
     let frames = render(&sensor, &Scene::defect_plate(19, 4), 22, 0.5);
-    let model = FullModel::nominal(&sensor);
-    let mut coder = StripeCoder::new(
-        &model,
-        sensor.camera.width,
-        sensor.camera.height,
-        CodingParams::default(),
-    )
-    .expect("coder");
-    let mut ex = Extractor::new(ExtractParams {
-        method: Method::Steger,
-        ..ExtractParams::default()
-    })
-    .expect("extractor");
+    let (mut coder, mut ex) = coder_and_extractor(&sensor, CodingParams::default());
     let mut extraction = Extraction::default();
     let mut coded = Vec::new();
     for f in &frames {
-        let data: Vec<u8> = f.image.data().iter().map(|&v| v.min(255) as u8).collect();
-        let img = Image::from_vec(f.image.width(), f.image.height(), data).expect("image");
-        ex.extract_into(img.view(), &mut extraction);
+        ex.extract_into(eight_bit(f).view(), &mut extraction);
         let mut c = CodedFrame::default();
         coder.code_into(&extraction.points, &mut c.coding);
         c.points = extraction.points.clone();
