@@ -1,5 +1,6 @@
-//! Scanning: one frame to one triangulated profile (extract → code → triangulate), and a scan's profiles to a
-//! range image. The command line, the benchmarks and the ground-truth tests all go through [`Scanner`], so they
+//! Scanning: one frame to one triangulated profile (extract → code → triangulate); a scan's coded frames
+//! reconciled across frames and triangulated ([`profiles_of`], what `stripe3d scan` does); and a scan's profiles to
+//! a range image. The command line, the benchmarks and the ground-truth tests all go through [`Scanner`], so they
 //! measure the same chain.
 
 use crate::CoreError;
@@ -66,9 +67,7 @@ impl Scanner {
         );
         self.coding.stats
     }
-}
 
-impl Scanner {
     /// Extracts and codes one frame into `out` (for [`profiles_of`], which reconciles the coding across frames).
     pub fn code_into<T: Pixel>(&mut self, frame: ImageView<'_, T>, out: &mut CodedFrame) {
         self.extractor.extract_into(frame, &mut self.extraction);
