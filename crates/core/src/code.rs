@@ -617,6 +617,47 @@ struct SegmentState {
     taken_row: u32,
 }
 
+/// The costs of a row's transitions between labelled points, with the row's bands at hand.
+struct Transitions<'a> {
+    params: &'a CodingParams,
+    bands: &'a [Band],
+    jump_cost: f32,
+    skip_cost: f32,
+}
+
+impl<'a> Transitions<'a> {
+    fn new(params: &'a CodingParams, bands: &'a [Band]) -> Self {
+        Self {
+            params,
+            bands,
+            jump_cost: params.jump_cost as f32,
+            skip_cost: params.skip_cost as f32,
+        }
+    }
+
+    /// Cost of the transition between two labelled points of heights `za` and `zb`: stripes `from + 1 .. to`
+    /// missing, or the surface jumping between neighbouring stripes.
+    #[inline]
+    fn cost(&self, from: u16, to: u16, za: f32, zb: f32) -> f32 {
+        let n = u32::from(to) - u32::from(from) - 1;
+        if n == 0 {
+            return if f64::from((zb - za).abs()) > self.params.jump_mm {
+                self.jump_cost
+            } else {
+                0.0
+            };
+        }
+        let leftward = self.bands[usize::from(to)].leftward;
+        let rise = if leftward { zb - za } else { za - zb };
+        if f64::from(rise) >= self.params.rise_mm {
+            // One wall hides all the stripes it hides: one event, plus a little per stripe.
+            (self.params.rise_skip_cost + f64::from(n) * self.params.edge_skip_cost) as f32
+        } else {
+            n as f32 * self.skip_cost
+        }
+    }
+}
+
 /// A reusable stripe coder for one calibrated sensor: bands, rule tables and buffers persist across frames.
 #[derive(Debug, Clone)]
 pub struct StripeCoder {
@@ -634,6 +675,8 @@ pub struct StripeCoder {
     state: Vec<PointState>,
     segments: Vec<SegmentState>,
     open: Vec<u32>,
+    /// Undistorted normalised coordinates of every point of the frame (computed once, used for every label).
+    normalized: Vec<(f64, f64)>,
 }
 
 impl StripeCoder {
@@ -731,6 +774,7 @@ impl StripeCoder {
             state: Vec::new(),
             segments: Vec::new(),
             open: Vec::new(),
+            normalized: Vec::new(),
         })
     }
 
@@ -784,6 +828,13 @@ impl StripeCoder {
                 segment: NO_SEGMENT,
             },
         );
+        let camera = &self.model.camera;
+        self.normalized.clear();
+        self.normalized.extend(
+            points
+                .iter()
+                .map(|p| camera.normalized(p.x, f64::from(p.row))),
+        );
         // Pass 1: each row on its own.
         let mut start = 0;
         while start < self.order.len() {
@@ -804,28 +855,6 @@ impl StripeCoder {
     #[inline]
     fn band_of(&self, row: u32, k: usize) -> &Band {
         &self.bands[row as usize * self.stripes + k]
-    }
-
-    /// Cost of the transition between two labelled points of heights `za` and `zb`: stripes `from + 1 .. to`
-    /// missing, or the surface jumping between neighbouring stripes.
-    #[inline]
-    fn inner_skip(&self, row: u32, from: u16, to: u16, za: f32, zb: f32) -> f32 {
-        let n = u32::from(to) - u32::from(from) - 1;
-        if n == 0 {
-            return if f64::from((zb - za).abs()) > self.params.jump_mm {
-                self.params.jump_cost as f32
-            } else {
-                0.0
-            };
-        }
-        let leftward = self.band_of(row, usize::from(to)).leftward;
-        let rise = if leftward { zb - za } else { za - zb };
-        if f64::from(rise) >= self.params.rise_mm {
-            // One wall hides all the stripes it hides: one event, plus a little per stripe.
-            (self.params.rise_skip_cost + f64::from(n) * self.params.edge_skip_cost) as f32
-        } else {
-            n as f32 * self.params.skip_cost as f32
-        }
     }
 
     /// Cost of stripes hidden beyond the end of a row on the projector's side by a rise from the belt to the
@@ -894,19 +923,20 @@ impl StripeCoder {
         let m = end - start;
         let q = self.params.outlier_cost as f32;
         let run = self.params.max_outlier_run;
-        let v = f64::from(row);
         self.items.clear();
         self.row_start.clear();
         for j in 0..m {
             self.row_start.push(self.items.len());
-            let u = points[self.order[start + j] as usize].x;
+            let idx = self.order[start + j] as usize;
+            let u = points[idx].x;
+            let (xn, yn) = self.normalized[idx];
             for k in 0..self.stripes {
                 let b = self.band_of(row, k);
                 let uf = u as f32;
                 if !(uf >= b.u_min && uf <= b.u_max) {
                     continue;
                 }
-                if let Some(z) = self.model.height(k, u, v) {
+                if let Some(z) = self.model.height_normalized(k, xn, yn) {
                     let z = z as f32;
                     self.items.push(Item {
                         j: j as u16,
@@ -921,43 +951,49 @@ impl StripeCoder {
             }
         }
         self.row_start.push(self.items.len());
+        // The three passes below visit every pair of items at most `run + 1` points apart with growing labels
+        // (items of one point are in label order, so a pass stops or starts at the first label that fits).
+        let tr = Transitions::new(
+            &self.params,
+            &self.bands[row as usize * self.stripes..][..self.stripes],
+        );
+        let (items, row_start) = (&mut self.items, &self.row_start);
         // Forward: best cost of the row's left part ending with this item labelled.
-        for bi in 0..self.items.len() {
-            let b = self.items[bi];
+        for bi in 0..items.len() {
+            let b = items[bi];
             let jb = usize::from(b.j);
             let mut best = b.start;
             for ja in jb.saturating_sub(run + 1)..jb {
-                for ai in self.row_start[ja]..self.row_start[ja + 1] {
-                    let a = self.items[ai];
+                let gap = q * (jb - ja - 1) as f32;
+                for a in &items[row_start[ja]..row_start[ja + 1]] {
                     if a.label >= b.label {
-                        continue;
+                        break;
                     }
-                    let c = a.forward
-                        + q * (jb - ja - 1) as f32
-                        + self.inner_skip(row, a.label, b.label, a.z, b.z);
-                    best = best.min(c);
+                    let c = a.forward + gap + tr.cost(a.label, b.label, a.z, b.z);
+                    if c < best {
+                        best = c;
+                    }
                 }
             }
-            self.items[bi].forward = best;
+            items[bi].forward = best;
         }
         // Backward: best cost of the right part given this item labelled.
-        for ai in (0..self.items.len()).rev() {
-            let a = self.items[ai];
+        for ai in (0..items.len()).rev() {
+            let a = items[ai];
             let ja = usize::from(a.j);
             let mut best = a.end;
             for jb in ja + 1..(ja + run + 2).min(m) {
-                for bi in self.row_start[jb]..self.row_start[jb + 1] {
-                    let b = self.items[bi];
-                    if b.label <= a.label {
-                        continue;
+                let gap = q * (jb - ja - 1) as f32;
+                let after = &items[row_start[jb]..row_start[jb + 1]];
+                let first = after.partition_point(|b| b.label <= a.label);
+                for b in &after[first..] {
+                    let c = b.backward + gap + tr.cost(a.label, b.label, a.z, b.z);
+                    if c < best {
+                        best = c;
                     }
-                    let c = b.backward
-                        + q * (jb - ja - 1) as f32
-                        + self.inner_skip(row, a.label, b.label, a.z, b.z);
-                    best = best.min(c);
                 }
             }
-            self.items[ai].backward = best;
+            items[ai].backward = best;
         }
         // Min-marginals of "point j is false".
         self.outlier_marginal.clear();
@@ -967,10 +1003,8 @@ impl StripeCoder {
         let mut prefix = f32::INFINITY; // best cost ending the labelling at a point left of j
         for j in 0..m {
             if j > 0 {
-                for ai in self.row_start[j - 1]..self.row_start[j] {
-                    let a = self.items[ai];
-                    let end_here = a.forward + a.end;
-                    prefix = prefix.min(end_here);
+                for a in &items[row_start[j - 1]..row_start[j]] {
+                    prefix = prefix.min(a.forward + a.end);
                 }
             }
             self.outlier_marginal[j] = self.outlier_marginal[j].min(prefix);
@@ -978,31 +1012,29 @@ impl StripeCoder {
         let mut suffix = f32::INFINITY; // best cost starting the labelling at a point right of j
         for j in (0..m).rev() {
             if j + 1 < m {
-                for bi in self.row_start[j + 1]..self.row_start[j + 2] {
-                    let b = self.items[bi];
-                    let start_here = b.start + b.backward;
-                    suffix = suffix.min(start_here);
+                for b in &items[row_start[j + 1]..row_start[j + 2]] {
+                    suffix = suffix.min(b.start + b.backward);
                 }
             }
             self.outlier_marginal[j] = self.outlier_marginal[j].min(suffix);
         }
+        // Labellings that declare the points strictly between two labelled ones false.
         for ja in 0..m {
             for jb in ja + 2..(ja + run + 2).min(m) {
-                for ai in self.row_start[ja]..self.row_start[ja + 1] {
-                    let a = self.items[ai];
-                    for bi in self.row_start[jb]..self.row_start[jb + 1] {
-                        let b = self.items[bi];
-                        if b.label <= a.label {
-                            continue;
-                        }
-                        let c = a.forward
-                            + q * (jb - ja - 1) as f32
-                            + self.inner_skip(row, a.label, b.label, a.z, b.z)
-                            + b.backward;
-                        for j in ja + 1..jb {
-                            self.outlier_marginal[j] = self.outlier_marginal[j].min(c);
+                let gap = q * (jb - ja - 1) as f32;
+                let after = &items[row_start[jb]..row_start[jb + 1]];
+                let mut best = f32::INFINITY;
+                for a in &items[row_start[ja]..row_start[ja + 1]] {
+                    let first = after.partition_point(|b| b.label <= a.label);
+                    for b in &after[first..] {
+                        let c = a.forward + gap + tr.cost(a.label, b.label, a.z, b.z) + b.backward;
+                        if c < best {
+                            best = c;
                         }
                     }
+                }
+                for o in &mut self.outlier_marginal[ja + 1..jb] {
+                    *o = o.min(best);
                 }
             }
         }
@@ -1077,9 +1109,10 @@ impl StripeCoder {
                         continue;
                     }
                     // Heights compared under the segment's label.
+                    let (xn, yn) = self.normalized[idx];
                     let z = self
                         .model
-                        .height(usize::from(seg.last_label), p.x, f64::from(row))
+                        .height_normalized(usize::from(seg.last_label), xn, yn)
                         .unwrap_or(f64::NAN);
                     let change = (z - f64::from(seg.last_z)).abs();
                     let ok = if gap == 0 {

@@ -117,8 +117,16 @@ impl FullModel {
     /// building the point.
     #[inline]
     pub fn height(&self, stripe: usize, u: f64, v: f64) -> Option<f64> {
-        let plane = self.planes.get(stripe)?;
         let (xn, yn) = self.camera.normalized(u, v);
+        self.height_normalized(stripe, xn, yn)
+    }
+
+    /// [`FullModel::height`] for a pixel already turned into undistorted normalised coordinates
+    /// ([`crate::sensor::Camera::normalized`]): the same value, without undistorting the pixel again for every
+    /// stripe a caller tries.
+    #[inline]
+    pub fn height_normalized(&self, stripe: usize, xn: f64, yn: f64) -> Option<f64> {
+        let plane = self.planes.get(stripe)?;
         let h = self.camera.height_mm;
         // Ray from (0, 0, H) along (xn, -yn, -1).
         let denom = plane.normal.x * xn - plane.normal.y * yn - plane.normal.z;
