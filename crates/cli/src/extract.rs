@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use std::io::Write;
 use std::path::PathBuf;
 use stripe3d_core::extract::{
-    Axis, ExtractParams, Extraction, Extractor, Method, Policy, Threshold,
+    Axis, DEFAULT_CUT_ASYMMETRY, ExtractParams, Extraction, Extractor, Method, Policy, Threshold,
 };
 use stripe3d_io::images::{FrameData, read_frame_native};
 
@@ -74,6 +74,15 @@ pub struct ExtractArgs {
     /// Largest image accepted, pixels.
     #[arg(long, default_value_t = 64 * 1024 * 1024)]
     pub max_pixels: usize,
+    /// Drop points whose profile's flanks are more lopsided than this, 0 to 1 (a stripe cut by an edge, whose
+    /// centre is off the sheet) [default: keep them].
+    #[arg(long, value_name = "LIMIT", value_parser = parse_asymmetry)]
+    pub max_asymmetry: Option<f64>,
+    /// Mark points more lopsided than this as cut (the `cut` field of the JSON output; stripe coding lets them
+    /// follow a stripe but not start one), 0 to 1, or `off` (stripes with a one-sided tail, e.g. light scattered
+    /// inside a translucent part).
+    #[arg(long, value_name = "LIMIT|off", default_value_t = DEFAULT_CUT_ASYMMETRY, value_parser = parse_asymmetry)]
+    pub cut_asymmetry: f64,
 }
 
 /// Builds extraction parameters from the command line.
@@ -112,6 +121,17 @@ pub fn params(
     })
 }
 
+/// Parses `--max-asymmetry` and `--cut-asymmetry`: a number from 0 to 1, or `off` (infinity).
+pub fn parse_asymmetry(s: &str) -> Result<f64, String> {
+    if s.eq_ignore_ascii_case("off") {
+        return Ok(f64::INFINITY);
+    }
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: give a lopsidedness from 0 to 1, or `off`")),
+    }
+}
+
 /// Runs the extractor on a decoded frame.
 pub fn run_frame(ex: &mut Extractor, frame: &FrameData, out: &mut Extraction) {
     match frame {
@@ -123,6 +143,8 @@ pub fn run_frame(ex: &mut Extractor, frame: &FrameData, out: &mut Extraction) {
 /// Runs `stripe3d extract`.
 pub fn extract(args: &ExtractArgs) -> Result<()> {
     let mut params = params(&args.method, args.threshold, args.axis, args.policy)?;
+    params.max_asymmetry = args.max_asymmetry.unwrap_or(f64::INFINITY);
+    params.cut_asymmetry = args.cut_asymmetry;
     if args.line_threshold {
         params.threshold = Threshold::Line;
     }

@@ -1,7 +1,9 @@
 //! `stripe3d inspect`: scan frames (or take a scan's range image), characterize the surface, find and measure its
 //! defects, and write `report.json` with the pictures.
 
-use crate::scan::{ScanResult, default_grid, frame_list, scan_frames, travels, write_scan};
+use crate::scan::{
+    ScanResult, default_grid, extract_params, frame_list, scan_frames, travels, write_scan,
+};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use serde_json::{Value, json};
@@ -447,7 +449,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             &cal,
             &frames,
             &travel,
-            &estimator,
+            extract_params(&estimator)?,
             ModelKind::Full,
             range_mm,
             grid,

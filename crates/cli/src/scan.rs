@@ -83,9 +83,14 @@ pub struct ScanArgs {
     /// quarter of their span above and 1 mm below].
     #[arg(long, value_name = "MIN:MAX")]
     pub range: Option<String>,
+    /// Stripe points whose profile's flanks are more lopsided than this, 0 to 1, are cut fragments: coding lets
+    /// them follow a stripe but not start one. `off` treats every point alike (see `stripe3d extract --help`).
+    #[arg(long, value_name = "LIMIT|off", default_value_t = stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY, value_parser = crate::extract::parse_asymmetry)]
+    pub cut_asymmetry: f64,
 }
 
-fn extract_params(method: &str) -> Result<ExtractParams> {
+/// The extraction of a scan with estimator `method`: every other setting at its default.
+pub fn extract_params(method: &str) -> Result<ExtractParams> {
     use crate::extract::{AxisArg, PolicyArg, params};
     params(method, None, AxisArg::Rows, PolicyArg::All)
 }
@@ -296,7 +301,7 @@ pub fn scan_frames(
     cal: &Calibration,
     frames: &[PathBuf],
     travel: &[f64],
-    method: &str,
+    extract: ExtractParams,
     model: ModelKind,
     range_mm: (f64, f64),
     grid_mm: [f64; 2],
@@ -307,7 +312,7 @@ pub fn scan_frames(
         max_height_mm: range_mm.1,
         ..CodingParams::default()
     };
-    let scanner = Scanner::new(cal, extract_params(method)?, coding_params, model)?;
+    let scanner = Scanner::new(cal, extract, coding_params, model)?;
     let bar = ProgressBar::new(frames.len() as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames ({eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar())
@@ -400,15 +405,12 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         ModelArg::Full => ModelKind::Full,
         ModelArg::Linear => ModelKind::Linear,
     };
+    let extract = ExtractParams {
+        cut_asymmetry: args.cut_asymmetry,
+        ..extract_params(&args.method)?
+    };
     let res = scan_frames(
-        &sensor,
-        &cal,
-        &frames,
-        &travel,
-        &args.method,
-        model,
-        range_mm,
-        grid,
+        &sensor, &cal, &frames, &travel, extract, model, range_mm, grid,
     )?;
     write_scan(&args.out, &res, &frames, &travel, model, range_mm)?;
     Ok(res)

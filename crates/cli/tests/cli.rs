@@ -313,6 +313,32 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
     );
     let o = stripe3d(&["extract", f0, "--threshold", "-3"]);
     assert!(!o.status.success());
+    // Cut stripes: dropped only when asked (no more points than the default), marked in JSON; out of range refused.
+    let count = |o: &std::process::Output| String::from_utf8_lossy(&o.stdout).lines().count();
+    let all = stripe3d(&["extract", f0]);
+    let dropped = stripe3d(&[
+        "extract",
+        f0,
+        "--max-asymmetry",
+        "0.2",
+        "--cut-asymmetry",
+        "off",
+    ]);
+    assert!(dropped.status.success(), "{}", stderr(&dropped));
+    assert!(count(&dropped) <= count(&all));
+    let o = stripe3d(&["extract", f0, "--format", "json", "--cut-asymmetry", "0"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert!(v["frames"][0]["points"][0]["cut"].is_boolean());
+    for flag in ["--max-asymmetry", "--cut-asymmetry"] {
+        for bad in ["1.5", "-0.1", "nan", "inf", "abc"] {
+            let arg = format!("{flag}={bad}");
+            let o = stripe3d(&["extract", f0, &arg]);
+            assert!(!o.status.success(), "{arg}");
+            assert!(stderr(&o).contains(flag), "{}", stderr(&o));
+            assert!(o.stdout.is_empty());
+        }
+    }
     // A frame without stripes gives the header only.
     let dark = dir.path().join("dark.pgm");
     std::fs::write(&dark, [b"P5\n8 4\n255\n".as_slice(), &[7u8; 32]].concat()).expect("write");

@@ -43,3 +43,21 @@ fn per_frame(bencher: divan::Bencher, method: &str) {
         divan::black_box(out.points.len())
     });
 }
+
+/// The cost of marking cut stripes ([`ExtractParams::cut_asymmetry`], on by default): the same frame with the
+/// marking off.
+#[divan::bench(args = ["linear", "steger"])]
+fn per_frame_unmarked(bencher: divan::Bencher, method: &str) {
+    let img = frame();
+    let params = ExtractParams {
+        method: Method::from_name(method).expect("method"),
+        cut_asymmetry: f64::INFINITY,
+        ..ExtractParams::default()
+    };
+    let mut ex = Extractor::new(params).expect("extractor");
+    let mut out = Extraction::default();
+    bencher.bench_local(|| {
+        ex.extract_into(img.view(), &mut out);
+        divan::black_box(out.points.len())
+    });
+}

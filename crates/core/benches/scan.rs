@@ -26,6 +26,7 @@ fn frame() -> (FullModel, Vec<StripePoint>) {
                     intensity: 150.0,
                     width: 5.0,
                     score: 1.0,
+                    cut: false,
                 });
             }
         }

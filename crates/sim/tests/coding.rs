@@ -119,12 +119,13 @@ fn the_demo_part_with_holes_shadows_and_ghosts_is_coded() {
         t.right_rate(),
         t.coverage()
     );
-    // The target (>= 99.9 % right) is not met on this part: stripes whose sheet just misses a corner light
-    // it with their beam's tail, and those fragments (real light, no truth point) run the whole length of the
-    // plate's edge, where the row labelling reads them as one more stripe. This guards the level measured when
-    // coding landed.
-    assert!(t.right_rate() >= 0.78, "{t:?}");
-    assert!(t.coverage() >= 0.6, "{t:?}");
+    // The target (>= 99.9 % right) is not met on this part. Stripes whose sheet just misses a corner light
+    // it with their beam's tail; those fragments run the whole length of the plate's edge, and the row labelling
+    // read them as one more stripe (80.4% right) until extraction marked cut profiles and coding let dim ones
+    // follow a stripe but not start one (93.3%). The rest: a step whose neighbouring stripes are hidden reads as
+    // well one stripe over. This guards the level measured.
+    assert!(t.right_rate() >= 0.92, "{t:?}");
+    assert!(t.coverage() >= 0.68, "{t:?}");
 }
 
 #[test]
@@ -176,7 +177,7 @@ fn temporal_reconciliation_recovers_dropped_points_right() {
         }
     }
     eprintln!("reconciled: {recovered} recovered, {right} right, {wrong} wrong");
-    // Measured: 534 recovered, 532 right, 0 wrong (2 without a truth point).
+    // Measured: 527 recovered, 525 right, 0 wrong (2 without a truth point).
     assert!(recovered >= 300, "{recovered}");
     assert_eq!(wrong, 0);
     assert!(right + 10 >= recovered);

@@ -82,13 +82,30 @@ pub fn plateau_centre<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> f64 {
     0.5 * (l + r)
 }
 
-/// Lopsidedness of the profile about `centre`: |w_l − w_r| / (w_l + w_r), with w_l and w_r the distances from
-/// the centre to the half-height crossings on either side (0 for a symmetric stripe, 1 for a cliff).
-pub fn asymmetry<T: Pixel>(line: &[T], p: &Peak, bg: f64, centre: f64) -> f64 {
-    let (l, r) = half_height_crossings(line, p, bg);
-    let (wl, wr) = (centre - l, r - centre);
-    if wl + wr > 0.0 {
-        ((wl - wr) / (wl + wr)).abs()
+/// Pixels on each side of a peak's top in which [`flank_asymmetry`] looks for the steepest step (stripes up to a
+/// sigma of 5 px).
+pub const FLANK_WINDOW: usize = 6;
+
+/// Lopsidedness of the profile's flanks: |s_l − s_r| / (s_l + s_r), with s_l the steepest one-pixel rise from the
+/// left bound of the region of interest to the top and s_r the steepest one-pixel fall from the top to the right
+/// bound (0 for a symmetric stripe, 1 for a cliff on one side and no slope on the other). A stripe cut by an edge
+/// (the tail of a sheet lighting a corner, half a stripe in an occluding edge's shadow) falls to the background
+/// in one pixel on the cut side and slopes like a blurred stripe on the other. Unlike the distances from the centre
+/// to the half-height crossings, this does not depend on the centre estimate, which sits between the crossings of a
+/// cut profile as it does for a whole one.
+///
+/// Only the [`FLANK_WINDOW`] pixels next to the top are looked at: the steepest step of a Gaussian stripe lies one
+/// sigma from its centre, and a cut lies at the top's edge; further out the region of interest may hold another
+/// feature's slope (and the walk would cost as much as the estimate).
+pub fn flank_asymmetry<T: Pixel>(line: &[T], p: &Peak) -> f64 {
+    let step = |i: usize| f64::from(line[i + 1].to_f32()) - f64::from(line[i].to_f32());
+    let last = line.len().saturating_sub(1);
+    let from = p.roi_left.max(p.top_start.saturating_sub(FLANK_WINDOW));
+    let rise = (from..p.top_start.min(last)).map(step).fold(0.0, f64::max);
+    let to = p.roi_right.min(p.top_end + FLANK_WINDOW).min(last);
+    let fall = (p.top_end..to).map(|i| -step(i)).fold(0.0, f64::max);
+    if rise + fall > 0.0 {
+        ((rise - fall) / (rise + fall)).abs()
     } else {
         0.0
     }
@@ -230,5 +247,34 @@ mod tests {
         }
         let br = blais_rioux(&line, &p, 4).expect("br8");
         assert!((br - 30.3).abs() < 0.05, "{br}");
+    }
+
+    #[test]
+    fn whole_stripes_are_symmetric_and_cut_ones_are_not() {
+        for &s in &[1.0, 1.5, 2.0, 3.0] {
+            for &c in &[30.0, 30.13, 30.37, 30.5, 30.81] {
+                let whole = stripe(c, s);
+                let a = flank_asymmetry(&whole, &peak(&whole));
+                assert!(a < 0.3, "whole stripe sigma {s} at {c}: {a}");
+                // The same stripe cut half a sigma right of its centre (an edge or the end of a sheet's tail).
+                let mut cut = whole.clone();
+                for (i, v) in cut.iter_mut().enumerate() {
+                    if i as f64 > c + 0.5 * s {
+                        *v = 10;
+                    }
+                }
+                // A stripe of sigma 1 falls by up to 0.47 of its height in one pixel: cut at its top, it is no more
+                // than 0.36 lopsided, below the default limit.
+                let b = flank_asymmetry(&cut, &peak(&cut));
+                assert!(s < 1.5 || b > 0.4, "cut stripe sigma {s} at {c}: {b}");
+            }
+        }
+        // A saturated plateau falls as steeply on both sides.
+        let mut sat = stripe(30.3, 2.0);
+        for x in sat.iter_mut() {
+            *x = (*x).min(40000);
+        }
+        let a = flank_asymmetry(&sat, &peak(&sat));
+        assert!(a < 0.1, "{a}");
     }
 }
