@@ -25,11 +25,12 @@
 //!    points that confidently disagree are dropped. Points on the belt (height very small, which rule 1 keeps out
 //!    of segments) keep their per-row decision.
 //!
-//! Points extraction marked cut ([`StripePoint::cut`]: a profile that falls to the background in one pixel on one
-//! side) are left out of the row labelling and of the votes: the fragment a sheet's tail throws on a part's far
-//! corner would otherwise pass for one more stripe and shift the reading of the whole row by one. They join the
-//! segment they line up with (a stripe running along a hole's side is cut there, and those points are the only
-//! measurement of the rim) and take its label; a cut point no segment claims is dropped as false.
+//! Fragments — points extraction marked cut ([`StripePoint::cut`]: a profile that falls to the background in one
+//! pixel on one side) that are also much dimmer than their row's other points ([`CodingParams::fragment_intensity`])
+//! — are left out of the row labelling and of the votes: the fragment a sheet's tail throws on a part's far corner
+//! would otherwise pass for one more stripe and shift the reading of the whole row by one. They join the segment
+//! they line up with and take its label; a fragment no segment claims is dropped as false. A cut point as bright as
+//! its row's stripes (a stripe half hidden by a hole's side) is read like any other.
 //!
 //! Only scan lines along image rows are supported (stripes roughly vertical, the paper's set-up), because the
 //! ordering constraint holds along the direction that crosses the stripes.
