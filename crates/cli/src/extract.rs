@@ -78,9 +78,9 @@ pub struct ExtractArgs {
     /// centre is off the sheet) [default: keep them].
     #[arg(long, value_name = "LIMIT", value_parser = parse_asymmetry)]
     pub max_asymmetry: Option<f64>,
-    /// Mark points more lopsided than this as cut (the `cut` field of the JSON output; stripe coding lets them
-    /// follow a stripe but not start one), 0 to 1, or `off` (stripes with a one-sided tail, e.g. light scattered
-    /// inside a translucent part).
+    /// Mark points more lopsided than this as cut (the `cut` field of the JSON output; stripe coding lets the dim
+    /// ones follow a stripe but not start one), 0 to 1, or `off` (stripes with a one-sided tail, e.g. light
+    /// scattered inside a translucent part).
     #[arg(long, value_name = "LIMIT|off", default_value_t = DEFAULT_CUT_ASYMMETRY, value_parser = parse_asymmetry)]
     pub cut_asymmetry: f64,
 }

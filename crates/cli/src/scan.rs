@@ -83,8 +83,8 @@ pub struct ScanArgs {
     /// quarter of their span above and 1 mm below].
     #[arg(long, value_name = "MIN:MAX")]
     pub range: Option<String>,
-    /// Stripe points whose profile's flanks are more lopsided than this, 0 to 1, are cut fragments: coding lets
-    /// them follow a stripe but not start one. `off` treats every point alike (see `stripe3d extract --help`).
+    /// Stripe points whose profile's flanks are more lopsided than this, 0 to 1, are cut: coding lets the dim ones
+    /// (a sheet's tail on a corner) follow a stripe but not start one. `off` treats every point alike.
     #[arg(long, value_name = "LIMIT|off", default_value_t = stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY, value_parser = crate::extract::parse_asymmetry)]
     pub cut_asymmetry: f64,
 }
