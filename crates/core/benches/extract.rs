@@ -29,13 +29,9 @@ fn frame() -> Image<u8> {
     img
 }
 
-#[divan::bench(args = ["com3", "com-roi", "linear", "parabolic", "gaussian", "blais-rioux4", "blais-rioux8", "steger", "steger2d", "fuzzy"])]
-fn per_frame(bencher: divan::Bencher, method: &str) {
+/// Times `params` on the synthetic frame.
+fn bench_params(bencher: divan::Bencher, params: ExtractParams) {
     let img = frame();
-    let params = ExtractParams {
-        method: Method::from_name(method).expect("method"),
-        ..ExtractParams::default()
-    };
     let mut ex = Extractor::new(params).expect("extractor");
     let mut out = Extraction::default();
     bencher.bench_local(|| {
@@ -44,20 +40,23 @@ fn per_frame(bencher: divan::Bencher, method: &str) {
     });
 }
 
+#[divan::bench(args = ["com3", "com-roi", "linear", "parabolic", "gaussian", "blais-rioux4", "blais-rioux8", "steger", "steger2d", "fuzzy"])]
+fn per_frame(bencher: divan::Bencher, method: &str) {
+    let params = ExtractParams {
+        method: Method::from_name(method).expect("method"),
+        ..ExtractParams::default()
+    };
+    bench_params(bencher, params);
+}
+
 /// The cost of marking cut stripes ([`ExtractParams::cut_asymmetry`], on by default): the same frame with the
 /// marking off.
 #[divan::bench(args = ["linear", "steger"])]
 fn per_frame_unmarked(bencher: divan::Bencher, method: &str) {
-    let img = frame();
     let params = ExtractParams {
         method: Method::from_name(method).expect("method"),
         cut_asymmetry: f64::INFINITY,
         ..ExtractParams::default()
     };
-    let mut ex = Extractor::new(params).expect("extractor");
-    let mut out = Extraction::default();
-    bencher.bench_local(|| {
-        ex.extract_into(img.view(), &mut out);
-        divan::black_box(out.points.len())
-    });
+    bench_params(bencher, params);
 }
