@@ -118,9 +118,10 @@ impl Default for CodingParams {
             max_gap_rows: 40,
             // Tail fragments on the demo peak at 0.1-0.5 of the stripes beside them; a stripe half hidden by a
             // hole's side keeps most of its peak. Measured on the demo's 22 frames (wrong stripe indices after
-            // temporal reconciliation, 9,445 without marking): 0.4 -> 6,210, 0.6 -> 4,554, 1.0 -> 3,068, every cut
-            // point -> 2,945; on the defect benchmark every cut point made holes look larger (area within 15%
-            // 98.2% -> 95.5%: through a hole the belt shows as a dim cut stripe), 0.6 costs 1% (97.2%).
+            // temporal reconciliation, 9,445 without marking; before segments kept their settled label): 0.4 ->
+            // 6,210, 0.6 -> 4,554, 1.0 -> 3,068, every cut point -> 2,945; on the defect benchmark every cut point
+            // made holes look larger (area within 15% 98.2% -> 95.5%: through a hole the belt shows as a dim cut
+            // stripe), 0.6 costs 1% (97.2%).
             fragment_intensity: 0.6,
         }
     }
@@ -1252,8 +1253,8 @@ impl StripeCoder {
                     }
                     continue;
                 }
-                let s = match chosen {
-                    Some((s, _, _)) => s,
+                let (s, z_under_segment) = match chosen {
+                    Some((s, _, z)) => (s, Some(z)),
                     None => {
                         // Rule 1: only points that are not very low start segments.
                         if !self.tables.same_segment(f64::from(st.z), 0.0) {
@@ -1262,15 +1263,23 @@ impl StripeCoder {
                         let s = self.segments.len() as u32;
                         self.segments.push(SegmentState::default());
                         self.open.push(s);
-                        s
+                        (s, None)
                     }
                 };
                 let seg = &mut self.segments[s as usize];
                 seg.last_row = row;
                 seg.taken_row = row;
                 seg.last_u = p.x;
-                seg.last_label = st.best;
-                seg.last_z = st.z;
+                // Heights down the segment are compared under the label its last settled point had: a row read one
+                // stripe over without confidence (a near tie) would otherwise carry that reading on, and under it a
+                // 10 mm plate can look like a 3 mm one, low enough for rule 1 to end the segment there.
+                match z_under_segment {
+                    Some(z) if !st.confident => seg.last_z = z as f32,
+                    _ => {
+                        seg.last_label = st.best;
+                        seg.last_z = st.z;
+                    }
+                }
                 seg.length += 1;
                 if st.confident {
                     seg.total_votes += 1;

@@ -177,8 +177,10 @@ fn temporal_reconciliation_recovers_dropped_points_right() {
         }
     }
     eprintln!("reconciled: {recovered} recovered, {right} right, {wrong} wrong");
-    // Measured: 527 recovered, 525 right, 0 wrong (2 without a truth point).
-    assert!(recovered >= 300, "{recovered}");
+    // Measured: 76 recovered, 74 right, 0 wrong (2 without a truth point). It was 527 before segments kept the label
+    // of their last settled point across rows that read one stripe over without confidence: the coder now codes
+    // most of those points itself.
+    assert!(recovered >= 40, "{recovered}");
     assert_eq!(wrong, 0);
     assert!(right + 10 >= recovered);
 }
