@@ -68,7 +68,7 @@ pub enum BenchCommand {
     },
     /// Extraction speed on your own frames: decodes them once, extracts for a few seconds.
     Throughput {
-        /// Grey images (PNG, PGM, TIFF).
+        /// Grey images (PNG, PGM, TIFF), or folders of them.
         #[arg(required = true)]
         images: Vec<PathBuf>,
         /// Sub-pixel estimator.
@@ -156,6 +156,7 @@ fn throughput(
         bail!("--seconds {seconds}: give 0 to 600 seconds");
     }
     let params = params(method, None, AxisArg::Rows, PolicyArg::All)?;
+    let images = crate::scan::frame_list(images)?;
     let frames: Vec<FrameData> = images
         .iter()
         .map(|p| read_frame_native(p, 64 << 20))

@@ -288,6 +288,38 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
     }
     assert!(v["frames"][0]["empty_lines"].is_array());
 
+    // Throughput over a folder of frames: the contract's last line; an empty folder is refused by name.
+    let frames = sim.join("frames");
+    let o = stripe3d(&[
+        "bench",
+        "throughput",
+        frames.to_str().expect("utf8"),
+        "--method",
+        "linear",
+        "--threads",
+        "2",
+        "--seconds",
+        "0.05",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    let last = out.lines().last().unwrap_or("");
+    assert!(
+        last.starts_with("throughput: ")
+            && last.contains(" frames/s on 1 thread, ")
+            && last.ends_with(" frames/s on 2 threads (method linear, 648x480)"),
+        "{out}"
+    );
+    let hollow = dir.path().join("hollow");
+    std::fs::create_dir(&hollow).expect("mkdir");
+    let o = stripe3d(&["bench", "throughput", hollow.to_str().expect("utf8")]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("hollow") && stderr(&o).contains("no PNG"),
+        "{}",
+        stderr(&o)
+    );
+
     // Bad input: a clear message naming the file, non-zero exit, nothing on stdout.
     let junk = write(dir.path(), "junk.png", "not an image");
     let empty = write(dir.path(), "empty.pgm", "");

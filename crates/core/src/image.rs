@@ -17,6 +17,10 @@ pub trait Pixel: Copy + Default + Ord + Send + Sync + std::fmt::Debug + 'static 
     fn from_f32_saturating(v: f32) -> Self;
     /// Smallest value of a slice (`u32::MAX` when empty), reduced in the pixel type so that it vectorises.
     fn slice_min(s: &[Self]) -> u32;
+    /// Index of the first value above `level`, if any: the dominant-peak scan's jump over background.
+    fn first_above(s: &[Self], level: u32) -> Option<usize> {
+        s.iter().position(|p| p.to_u32() > level)
+    }
 }
 
 impl Pixel for u8 {
@@ -38,6 +42,12 @@ impl Pixel for u8 {
     fn slice_min(s: &[Self]) -> u32 {
         s.iter().copied().min().map_or(u32::MAX, u32::from)
     }
+    #[inline]
+    fn first_above(s: &[Self], level: u32) -> Option<usize> {
+        u8::try_from(level)
+            .ok()
+            .and_then(|l| simd::first_above_u8(s, l))
+    }
 }
 
 impl Pixel for u16 {
@@ -57,6 +67,85 @@ impl Pixel for u16 {
     #[inline]
     fn slice_min(s: &[Self]) -> u32 {
         s.iter().copied().min().map_or(u32::MAX, u32::from)
+    }
+    #[inline]
+    fn first_above(s: &[Self], level: u32) -> Option<usize> {
+        u16::try_from(level)
+            .ok()
+            .and_then(|l| simd::first_above_u16(s, l))
+    }
+}
+
+/// The search for the first pixel above a level, 16 bytes at a time.
+///
+/// Measured hot spot: in the dominant-peak scan, jumping over the background between stripes one pixel at a time
+/// was the largest single cost of a frame (a compare and a branch per pixel, `position` does not vectorise because
+/// of its early exit). On x86-64, SSE2 (part of the baseline, so no run-time detection) compares 16 (8-bit) or 8
+/// (16-bit) pixels per step: a saturating subtraction of the level is non-zero exactly where a pixel exceeds it, and
+/// a byte mask of the zero lanes finds the first. Elsewhere the portable loop. Tested against `position` on random
+/// lines, every level and offset.
+#[allow(unsafe_code)]
+mod simd {
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    pub fn first_above_u8(s: &[u8], level: u8) -> Option<usize> {
+        use std::arch::x86_64::{
+            __m128i, _mm_cmpeq_epi8, _mm_loadu_si128, _mm_movemask_epi8, _mm_set1_epi8,
+            _mm_setzero_si128, _mm_subs_epu8,
+        };
+        let mut i = 0;
+        // SAFETY: SSE2 is part of the x86-64 baseline; every load reads 16 bytes at `i` with `i + 16 <= s.len()`,
+        // unaligned loads are allowed.
+        unsafe {
+            let lv = _mm_set1_epi8(level as i8);
+            let zero = _mm_setzero_si128();
+            while i + 16 <= s.len() {
+                let v = _mm_loadu_si128(s.as_ptr().add(i).cast::<__m128i>());
+                let at_most = _mm_cmpeq_epi8(_mm_subs_epu8(v, lv), zero);
+                let above = !(_mm_movemask_epi8(at_most) as u32) & 0xffff;
+                if above != 0 {
+                    return Some(i + above.trailing_zeros() as usize);
+                }
+                i += 16;
+            }
+        }
+        s[i..].iter().position(|&p| p > level).map(|k| i + k)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    pub fn first_above_u16(s: &[u16], level: u16) -> Option<usize> {
+        use std::arch::x86_64::{
+            __m128i, _mm_cmpeq_epi16, _mm_loadu_si128, _mm_movemask_epi8, _mm_set1_epi16,
+            _mm_setzero_si128, _mm_subs_epu16,
+        };
+        let mut i = 0;
+        // SAFETY: as above, 8 pixels of 16 bits per load with `i + 8 <= s.len()`.
+        unsafe {
+            let lv = _mm_set1_epi16(level as i16);
+            let zero = _mm_setzero_si128();
+            while i + 8 <= s.len() {
+                let v = _mm_loadu_si128(s.as_ptr().add(i).cast::<__m128i>());
+                let at_most = _mm_cmpeq_epi16(_mm_subs_epu16(v, lv), zero);
+                // Two mask bits per 16-bit lane.
+                let above = !(_mm_movemask_epi8(at_most) as u32) & 0xffff;
+                if above != 0 {
+                    return Some(i + above.trailing_zeros() as usize / 2);
+                }
+                i += 8;
+            }
+        }
+        s[i..].iter().position(|&p| p > level).map(|k| i + k)
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    pub fn first_above_u8(s: &[u8], level: u8) -> Option<usize> {
+        s.iter().position(|&p| p > level)
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    pub fn first_above_u16(s: &[u16], level: u16) -> Option<usize> {
+        s.iter().position(|&p| p > level)
     }
 }
 
@@ -255,5 +344,48 @@ mod tests {
         assert_eq!(img.view().row(1), &[3, 4]);
         assert_eq!(u8::from_f32_saturating(300.0), 255);
         assert_eq!(u16::from_f32_saturating(-3.0), 0);
+    }
+
+    #[test]
+    fn first_above_finds_what_position_finds() {
+        let mut rng = 0x2545_f491u32;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            rng
+        };
+        for len in [0usize, 1, 7, 8, 15, 16, 17, 31, 33, 100, 648] {
+            for _ in 0..40 {
+                // Sparse bright pixels over a low background, so that every position of the first hit occurs.
+                let v8: Vec<u8> = (0..len)
+                    .map(|_| {
+                        if next() % 23 == 0 {
+                            (next() % 256) as u8
+                        } else {
+                            (next() % 12) as u8
+                        }
+                    })
+                    .collect();
+                let v16: Vec<u16> = v8
+                    .iter()
+                    .map(|&p| (u16::from(p) * 257).saturating_add((next() % 2) as u16))
+                    .collect();
+                for level in [0u32, 5, 11, 12, 100, 254, 255, 256, 65534, 65535, 70000] {
+                    for from in [0usize, 1, 3, 9] {
+                        let s = &v8[from.min(len)..];
+                        assert_eq!(
+                            u8::first_above(s, level),
+                            s.iter().position(|&p| u32::from(p) > level)
+                        );
+                        let s = &v16[from.min(len)..];
+                        assert_eq!(
+                            u16::first_above(s, level),
+                            s.iter().position(|&p| u32::from(p) > level)
+                        );
+                    }
+                }
+            }
+        }
     }
 }

@@ -73,12 +73,10 @@ fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>
     let mut i = 0;
     while i < n {
         if skip && !rising {
-            // Jump to the next pixel above `level`, folding the skipped pixels into the running minimum. (Chunked
-            // skipping measured slower: with 11 stripes in 648 columns, background gaps are too short.)
-            let run = line[i..]
-                .iter()
-                .position(|p| p.to_u32() > level)
-                .unwrap_or(n - i);
+            // Jump to the next pixel above `level` (16 bytes per step, [`Pixel::first_above`]), folding the skipped
+            // pixels into the running minimum. (Chunks reduced to their maximum measured slower: with 11 stripes in
+            // 648 columns the background gaps are short.)
+            let run = T::first_above(&line[i..], level).unwrap_or(n - i);
             if run > 0 {
                 mn = mn.min(T::slice_min(&line[i..i + run]));
                 i += run;
