@@ -468,6 +468,10 @@ const MIN_PIECE_MM2: f64 = 25.0;
 /// wall, mm: the wall of a through-hole seen in perspective, and the half-lit stripes on its rim, lie within a
 /// millimetre of the gap.
 pub const HOLE_WALL_MARGIN_MM: f64 = 1.0;
+/// Half-width (cells) of the thickest channel of missing data that cannot join a hole to the outside or to another
+/// gap ([`detect`], step 3): 2 cells, so channels up to 4 cells (0.9 mm at the default grid, about two frames of
+/// travel) wide.
+pub const GAP_CHANNEL_CELLS: usize = 2;
 
 /// Distance (cells, 3-4 chamfer: within 8% of Euclidean) of every cell to the nearest cell where `outside` holds.
 fn distance_to(w: usize, h: usize, outside: impl Fn(usize) -> bool) -> Vec<f32> {
@@ -635,6 +639,13 @@ fn opening(w: usize, h: usize, mask: &[bool]) -> Vec<bool> {
     let mut e = Bits::pack(w, h, mask, false).dilate(1);
     e.complement();
     e.dilate(1).unpack(true)
+}
+
+/// Morphological opening of a mask by a (2r+1)² square: removes structures up to 2r cells thin.
+fn opening_by(w: usize, h: usize, mask: &[bool], r: usize) -> Vec<bool> {
+    let mut e = Bits::pack(w, h, mask, false).dilate(r);
+    e.complement();
+    e.dilate(r).unpack(true)
 }
 
 /// Per row, the first and last column where `mask` holds; None for empty rows.
@@ -1122,13 +1133,66 @@ pub fn detect(
         outside_ids.insert(olabel[j * w]);
         outside_ids.insert(olabel[j * w + w - 1]);
     }
-    let mut gaps: std::collections::BTreeMap<u32, Vec<usize>> = std::collections::BTreeMap::new();
+    let mut whole_gaps: std::collections::BTreeMap<u32, Vec<usize>> =
+        std::collections::BTreeMap::new();
     for (k, &l) in olabel.iter().enumerate() {
         if l != 0 && !outside_ids.contains(&l) {
-            gaps.entry(l).or_default().push(k);
+            whole_gaps.entry(l).or_default().push(k);
         }
     }
-    for cells in gaps.values() {
+    // A thin channel of missing data (a stripe coding dropped for a frame or two: a column up to
+    // 2 * GAP_CHANNEL_CELLS cells wide) is not part of a hole it touches: each gap is opened by a (2r+1)² square on
+    // a window around it, and every core left is a gap of its own, given back the gap's cells within r of it (the
+    // rim slivers the opening took) but no more of the channel. A gap that is all channel stays whole.
+    let mut gaps: Vec<Vec<usize>> = Vec::new();
+    for cells in whole_gaps.into_values() {
+        let (mut i0, mut i1, mut j0, mut j1) = (w, 0, h, 0);
+        for &k in &cells {
+            let (i, j) = (k % w, k / w);
+            i0 = i0.min(i);
+            i1 = i1.max(i);
+            j0 = j0.min(j);
+            j1 = j1.max(j);
+        }
+        // One cell of margin, which is never the gap's (the gap is enclosed, so not on the grid's border).
+        let (i0, j0) = (i0 - 1, j0 - 1);
+        let (sw, sh) = (i1 + 2 - i0, j1 + 2 - j0);
+        let mut member = vec![false; sw * sh];
+        for &k in &cells {
+            member[(k / w - j0) * sw + (k % w - i0)] = true;
+        }
+        let cores = opening_by(sw, sh, &member, GAP_CHANNEL_CELLS);
+        let (clabel, csizes) = components(sw, sh, |q| cores[q], false);
+        // No core (all channel), or one core that is the whole gap: the gap as it is.
+        if csizes.len() < 2 || (csizes.len() == 2 && cores == member) {
+            gaps.push(cells);
+            continue;
+        }
+        let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); csizes.len()];
+        let r = GAP_CHANNEL_CELLS as isize;
+        for &k in &cells {
+            let (si, sj) = ((k % w - i0) as isize, (k / w - j0) as isize);
+            let mut best: Option<(isize, u32)> = None;
+            for dj in -r..=r {
+                for di in -r..=r {
+                    let (ii, jj) = (si + di, sj + dj);
+                    if ii < 0 || jj < 0 || ii >= sw as isize || jj >= sh as isize {
+                        continue;
+                    }
+                    let l = clabel[jj as usize * sw + ii as usize];
+                    let d = di.abs().max(dj.abs());
+                    if l != 0 && best.is_none_or(|(bd, _)| d < bd) {
+                        best = Some((d, l));
+                    }
+                }
+            }
+            if let Some((_, l)) = best {
+                pieces[l as usize].push(k);
+            }
+        }
+        gaps.extend(pieces.into_iter().filter(|p| !p.is_empty()));
+    }
+    for cells in &gaps {
         let area = cells.len() as f64 * cell_area;
         if area < params.min_gap_mm2 {
             continue;
@@ -1739,6 +1803,29 @@ mod tests {
             .collect();
         assert_eq!(dents.len(), 1, "{:?}", d.defects);
         assert!(dents[0].centroid_mm[0].abs() < 0.5, "{:?}", dents[0]);
+    }
+
+    #[test]
+    fn a_channel_of_missing_data_does_not_unmake_a_hole() {
+        // A 5 mm through-hole with a column of no data 0.6 mm wide running 8 mm from it (a stripe dropped for a
+        // frame): the hole is still a hole, measured without the column.
+        let r = plate(|x, y| {
+            if x.hypot(y) < 2.5 || (x.abs() < 0.3 && y > 0.0 && y < 10.0) {
+                None
+            } else {
+                Some(0.0)
+            }
+        });
+        let d = run(&r);
+        assert_eq!(d.defects.len(), 1, "{:?} {:?}", d.defects, d.unmeasured);
+        let hole = &d.defects[0];
+        assert_eq!(hole.kind, DefectKind::Hole);
+        let area = std::f64::consts::PI * 2.5 * 2.5;
+        assert!((hole.area_mm2 - area).abs() < 0.15 * area, "{hole:?}");
+        assert!(
+            hole.centroid_mm[0].hypot(hole.centroid_mm[1]) < 0.5,
+            "{hole:?}"
+        );
     }
 
     #[test]
