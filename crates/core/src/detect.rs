@@ -635,14 +635,12 @@ fn closing(w: usize, h: usize, mask: &[bool], r: usize) -> Vec<bool> {
 /// Morphological opening (3 x 3) of a mask: removes structures one or two cells thin (the walls of a hole seen in
 /// perspective land as such slivers inside it) and keeps everything broader unchanged.
 fn opening(w: usize, h: usize, mask: &[bool]) -> Vec<bool> {
-    // Erode (dilate the complement), then dilate what is left.
-    let mut e = Bits::pack(w, h, mask, false).dilate(1);
-    e.complement();
-    e.dilate(1).unpack(true)
+    opening_by(w, h, mask, 1)
 }
 
 /// Morphological opening of a mask by a (2r+1)² square: removes structures up to 2r cells thin.
 fn opening_by(w: usize, h: usize, mask: &[bool], r: usize) -> Vec<bool> {
+    // Erode (dilate the complement), then dilate what is left.
     let mut e = Bits::pack(w, h, mask, false).dilate(r);
     e.complement();
     e.dilate(r).unpack(true)
