@@ -333,6 +333,14 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
         assert!(o.stdout.is_empty());
     }
+    // The operating system's reason is given once, not once per level of the error chain.
+    let o = stripe3d(&["extract", "/no/such/frame.png"]);
+    assert_eq!(
+        stderr(&o).matches("No such file").count(),
+        1,
+        "{}",
+        stderr(&o)
+    );
     let o = stripe3d(&["extract", f0, "--max-pixels", "1000"]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("max-pixels"), "{}", stderr(&o));
