@@ -201,6 +201,13 @@ pub const DEFAULT_MAX_ASYMMETRY: f64 = f64::INFINITY;
 /// other is marked cut. A whole Gaussian stripe of sigma >= 1 px stays below 0.3 at any sub-pixel phase; cut half a
 /// sigma past its centre, a stripe of sigma >= 1.5 px is above 0.4 (unit-tested).
 pub const DEFAULT_CUT_ASYMMETRY: f64 = 0.4;
+/// A candidate within this many pixels of one at least [`SHOULDER_RATIO`] times as prominent on its scan line is
+/// marked cut: a sheet split by an edge (a chamfer, a corner) shows as a bright peak with a dim shoulder a few
+/// pixels away, and the shoulder read as a stripe of its own shifts a whole row by one index. Traced on the demo: at
+/// the boss's chamfer, stripe 8 (peak 74) with a shoulder 4 px away (peak 28) shifted rows 140-186 of frame 3.
+pub const SHOULDER_PX: f64 = 8.0;
+/// See [`SHOULDER_PX`].
+pub const SHOULDER_RATIO: f64 = 2.0;
 /// Narrowest stripe (intensity-weighted sigma, pixels) whose symmetry is judged.
 pub const MIN_SIGMA_FOR_SYMMETRY: f64 = 0.9;
 /// Default of [`ExtractParams::width_tolerance`].
@@ -450,6 +457,7 @@ impl Extractor {
             }
         }
         self.shape_filter();
+        self.mark_shoulders();
         if self.params.method == Method::Fuzzy {
             self.link_segments(full, out);
             return;
@@ -463,6 +471,30 @@ impl Extractor {
                 Kept::All => out.points.extend(cands[start..end].iter().map(|c| c.point)),
                 Kept::One(i) => out.points.push(cands[start + i].point),
                 Kept::None => {}
+            }
+            start = end;
+        }
+    }
+
+    /// Marks as cut a dim candidate beside a much brighter one on its scan line ([`SHOULDER_PX`]).
+    fn mark_shoulders(&mut self) {
+        if !self.params.cut_asymmetry.is_finite() || self.params.method == Method::Com {
+            return;
+        }
+        let mut start = 0;
+        while start < self.candidates.len() {
+            let (_, end) = line_span(&self.candidates, start);
+            // Candidates of a line are in column order: only the neighbours within reach are looked at.
+            for a in start..end {
+                let (xa, pa) = (self.candidates[a].point.x, self.candidates[a].prominence);
+                let brighter = |c: &Candidate| c.prominence >= SHOULDER_RATIO * pa;
+                let near = |c: &&Candidate| (c.point.x - xa).abs() <= SHOULDER_PX;
+                let cands = &self.candidates;
+                let shoulder = cands[start..a].iter().rev().take_while(near).any(brighter)
+                    || cands[a + 1..end].iter().take_while(near).any(brighter);
+                if shoulder {
+                    self.candidates[a].point.cut = true;
+                }
             }
             start = end;
         }
@@ -861,6 +893,38 @@ mod tests {
             }
             assert!(got.empty_lines().is_empty());
         }
+    }
+
+    #[test]
+    fn a_dim_shoulder_beside_a_bright_stripe_is_marked_cut() {
+        // A stripe split by an edge: a bright peak at 30 and a dim one 5 px away (a sheet across a chamfer); a
+        // stripe of the same brightness 5 px from another is not a shoulder.
+        let line = |peaks: &[(f64, f64)]| -> Image<u8> {
+            let mut img = Image::<u8>::new(80, 4);
+            for y in 0..4 {
+                for x in 0..80 {
+                    let v: f64 = 8.0
+                        + peaks
+                            .iter()
+                            .map(|&(c, a)| a * (-0.5 * ((x as f64 - c) / 1.0).powi(2)).exp())
+                            .sum::<f64>();
+                    img.data_mut()[y * 80 + x] = v.round() as u8;
+                }
+            }
+            img
+        };
+        let params = ExtractParams {
+            method: Method::Linear,
+            ..ExtractParams::default()
+        };
+        let got = extract(line(&[(30.0, 160.0), (35.0, 40.0)]).view(), &params).expect("extract");
+        assert_eq!(got.points.len(), 8, "{:?}", got.points);
+        for p in &got.points {
+            assert_eq!(p.cut, p.x > 32.5, "{p:?}");
+        }
+        let got = extract(line(&[(30.0, 150.0), (35.0, 130.0)]).view(), &params).expect("extract");
+        assert_eq!(got.points.len(), 8, "{:?}", got.points);
+        assert!(got.points.iter().all(|p| !p.cut), "{:?}", got.points);
     }
 
     #[test]
