@@ -60,3 +60,19 @@ fn per_frame_unmarked(bencher: divan::Bencher, method: &str) {
     };
     bench_params(bencher, params);
 }
+
+/// Dominant peaks and their regions of interest alone (no estimator, no marking), at a fixed threshold of 16 grey
+/// levels: the part of a frame's time every estimator shares.
+#[divan::bench]
+fn dominant_peaks_only(bencher: divan::Bencher) {
+    let img = frame();
+    let mut peaks = Vec::new();
+    bencher.bench_local(|| {
+        let mut n = 0;
+        for y in 0..img.height() {
+            stripe3d_core::extract::peaks::dominant_peaks(img.view().row(y), 16, &mut peaks);
+            n += peaks.len();
+        }
+        divan::black_box(n)
+    });
+}

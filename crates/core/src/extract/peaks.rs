@@ -53,7 +53,10 @@ pub fn dominant_peaks<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>)
     dominant_peaks_impl(line, threshold, out, true);
 }
 
-fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>, skip: bool) {
+/// The scan; `fast` false is the plain reference (no background skip, valleys found by walking), which the tests
+/// hold the fast path to.
+fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>, fast: bool) {
+    let skip = fast;
     out.clear();
     let n = line.len();
     if n < 3 {
@@ -72,16 +75,29 @@ fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>
     };
     let mut i = 0;
     while i < n {
-        if skip && !rising {
+        if skip && !rising && v(line, i) <= level {
             // Jump to the next pixel above `level` (16 bytes per step, [`Pixel::first_above`]), folding the skipped
             // pixels into the running minimum. (Chunks reduced to their maximum measured slower: with 11 stripes in
-            // 648 columns the background gaps are short.)
+            // 648 columns the background gaps are short. A falling flank's pixels above the level go the scalar way,
+            // without a call.)
             let run = T::first_above(&line[i..], level).unwrap_or(n - i);
             if run > 0 {
-                mn = mn.min(T::slice_min(&line[i..i + run]));
+                let gap = &line[i..i + run];
                 i += run;
                 if i >= n {
                     break;
+                }
+                // The running minimum only decides whether the pixel after the gap starts a rise (once rising it
+                // is not read again before the next fall resets it): one skipped pixel more than the threshold
+                // below that pixel is enough, and on a background one is usually the first. The whole gap's
+                // minimum only when none is.
+                let x = v(line, i);
+                if x <= mn.saturating_add(threshold) {
+                    let low = x.saturating_sub(threshold);
+                    mn = match gap.iter().find(|p| p.to_u32() < low) {
+                        Some(p) => p.to_u32(),
+                        None => mn.min(T::slice_min(gap)),
+                    };
                 }
             }
         }
@@ -114,7 +130,8 @@ fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>
         }
         i += 1;
     }
-    // Regions of interest: the nearest valleys more than the threshold below each peak (eq. 5-6).
+    // Regions of interest: the nearest valleys more than the threshold below each peak (eq. 5-6), the fast way
+    // testing 16 valley candidates at a time ([`Pixel::valley_marks`]).
     for k in 0..out.len() {
         let p = out[k];
         let limit = p.value.saturating_sub(threshold);
@@ -124,9 +141,57 @@ fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>
         } else {
             n - 1
         };
-        out[k].roi_left = nearest_valley_left(line, p.top_start, left_stop, limit);
-        out[k].roi_right = nearest_valley_right(line, p.top_end, right_stop, limit);
+        (out[k].roi_left, out[k].roi_right) = match fast {
+            true => (
+                marked_valley_left(line, p.top_start, left_stop, limit),
+                marked_valley_right(line, p.top_end, right_stop, limit),
+            ),
+            false => (
+                nearest_valley_left(line, p.top_start, left_stop, limit),
+                nearest_valley_right(line, p.top_end, right_stop, limit),
+            ),
+        };
     }
+}
+
+/// [`nearest_valley_left`] over the valley candidates, 16 at a time: the last marked pixel in `stop + 1..from`
+/// below `limit`, else `stop`.
+fn marked_valley_left<T: Pixel>(line: &[T], from: usize, stop: usize, limit: u32) -> usize {
+    // Candidates lie in stop + 1..end; each block holds the 16 pixels before `end` (fewer at the line's start).
+    let mut end = from;
+    while end > stop + 1 {
+        let start = end.saturating_sub(16).max(stop + 1);
+        // Bits of start..end.
+        let mut m = T::valley_marks(line, start) & ((1u32 << (end - start)) - 1);
+        while m != 0 {
+            let k = 31 - m.leading_zeros() as usize;
+            if v(line, start + k) < limit {
+                return start + k;
+            }
+            m &= !(1 << k);
+        }
+        end = start;
+    }
+    stop
+}
+
+/// [`nearest_valley_right`] over the valley candidates, 16 at a time: the first marked pixel in `from + 1..stop`
+/// below `limit`, else `stop`.
+fn marked_valley_right<T: Pixel>(line: &[T], from: usize, stop: usize, limit: u32) -> usize {
+    let mut start = from + 1;
+    while start < stop {
+        let len = (stop - start).min(16);
+        let mut m = T::valley_marks(line, start) & ((1u32 << len) - 1);
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            if v(line, start + k) < limit {
+                return start + k;
+            }
+            m &= m - 1;
+        }
+        start += 16;
+    }
+    stop
 }
 
 /// Nearest valley left of `from` (down to `stop`) whose value is below `limit`; `stop` when none is.
@@ -236,36 +301,50 @@ mod tests {
     }
 
     #[test]
-    fn block_skipping_changes_nothing() {
+    fn skipping_and_marked_valleys_change_nothing() {
         let mut rng = 12345u32;
         let mut next = || {
             rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
             rng >> 8
         };
-        for case in 0..500 {
-            let mut line = vec![0u16; 300];
+        for case in 0..2000 {
+            // Lengths across the 64-pixel words and the 16-pixel blocks; some bumps broad enough that their
+            // valleys lie words away from the top.
+            let n = 3 + (next() % 400) as usize;
+            let t = [1u32, 5, 15, 40][case % 4];
+            let mut line = vec![0u16; n];
             for x in line.iter_mut() {
                 *x = (next() % 12) as u16;
             }
             for _ in 0..(case % 7) {
-                let c = (next() % 300) as usize;
-                let a = 20 + (next() % 200) as u16;
-                let w = 1 + (next() % 6) as usize;
+                let c = (next() % n as u32) as usize;
+                let a = 20 + (next() % 230) as u16;
+                let broad = next() % 4 == 0;
+                let w = if broad {
+                    1 + (next() % 150) as usize
+                } else {
+                    1 + (next() % 6) as usize
+                };
                 for d in 0..w {
-                    if c + d < line.len() {
-                        line[c + d] = line[c + d].max(a - (a / 8) * d as u16);
+                    let fall = if broad { a / 160 } else { a / 8 };
+                    for x in [c + d, c.wrapping_sub(d)] {
+                        if x < n {
+                            line[x] = line[x].max(a.saturating_sub(fall * d as u16));
+                        }
                     }
                 }
             }
+            let line8: Vec<u8> = line.iter().map(|&x| x.min(255) as u8).collect();
             let (mut fast, mut slow) = (Vec::new(), Vec::new());
-            dominant_peaks_impl(&line, 15, &mut fast, true);
-            dominant_peaks_impl(&line, 15, &mut slow, false);
-            assert_eq!(fast, slow, "case {case}");
+            dominant_peaks_impl(&line8, t, &mut fast, true);
+            dominant_peaks_impl(&line8, t, &mut slow, false);
+            assert_eq!(fast, slow, "u8, case {case}");
+            dominant_peaks_impl(&line, t, &mut fast, true);
+            dominant_peaks_impl(&line, t, &mut slow, false);
+            assert_eq!(fast, slow, "u16, case {case}");
             for p in &fast {
-                assert!(u32::from(line[p.roi_left]) + 15 < p.value || p.roi_left == 0);
-                assert!(
-                    u32::from(line[p.roi_right]) + 15 < p.value || p.roi_right == line.len() - 1
-                );
+                assert!(u32::from(line[p.roi_left]) + t < p.value || p.roi_left == 0);
+                assert!(u32::from(line[p.roi_right]) + t < p.value || p.roi_right == n - 1);
                 assert!(p.roi_left <= p.top_start && p.top_end <= p.roi_right);
                 assert!(
                     line[p.top_start..=p.top_end]
@@ -291,5 +370,31 @@ mod tests {
             (s - 1.4826 * 2.0 / std::f64::consts::SQRT_2).abs() < 1e-9,
             "{s}"
         );
+    }
+
+    #[test]
+    fn noise_is_the_median_difference() {
+        // The histogram's median against sorting, on random lines of every length and spread.
+        let mut rng = 0x0bad_5eedu32;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            rng
+        };
+        let mut hist = Vec::new();
+        for case in 0..500u32 {
+            let len = 2 + (next() % 300) as usize;
+            let spread = [3, 20, 400, 65535][(case % 4) as usize];
+            let line: Vec<u16> = (0..len).map(|_| (next() % spread) as u16).collect();
+            let mut diffs: Vec<u32> = line
+                .windows(2)
+                .map(|w| u32::from(w[0].abs_diff(w[1])).min(255))
+                .collect();
+            diffs.sort_unstable();
+            let median = diffs[(len - 1).div_ceil(2) - 1];
+            let want = 1.4826 * f64::from(median) / std::f64::consts::SQRT_2;
+            assert_eq!(line_noise(&line, &mut hist), want, "{line:?}");
+        }
     }
 }

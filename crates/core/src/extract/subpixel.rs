@@ -19,10 +19,26 @@ pub fn background<T: Pixel>(line: &[T], p: &Peak) -> f64 {
     at(line, p.roi_left as isize).min(at(line, p.roi_right as isize))
 }
 
+/// Spans up to this many pixels take [`centre_of_mass`]'s integer path (its sums stay below 2^53, where the
+/// floating-point sums are exact too, for 16-bit pixels on lines of up to 2^22 pixels).
+const INTEGER_COM_MAX_SPAN: usize = 1 << 14;
+
 /// Centre of mass over `lo..=hi` of the intensities above `bg` (eq. 7-10 share this).
 pub fn centre_of_mass<T: Pixel>(line: &[T], lo: usize, hi: usize, bg: f64) -> Option<f64> {
-    let (mut s, mut sx) = (0.0, 0.0);
     let hi = hi.min(line.len().saturating_sub(1));
+    let bgi = bg as u32;
+    if f64::from(bgi) == bg && hi.saturating_sub(lo) < INTEGER_COM_MAX_SPAN {
+        // The usual case, an integer background: the same sums in integers, exact (and so equal to the
+        // floating-point sums, whose terms are integers too, below 2^53) and without a conversion per pixel.
+        let (mut s, mut sx) = (0u64, 0u64);
+        for (i, p) in line.iter().enumerate().take(hi + 1).skip(lo) {
+            let w = u64::from(p.to_u32().saturating_sub(bgi));
+            s += w;
+            sx += w * i as u64;
+        }
+        return (s > 0).then(|| sx as f64 / s as f64);
+    }
+    let (mut s, mut sx) = (0.0, 0.0);
     for (i, p) in line.iter().enumerate().take(hi + 1).skip(lo) {
         let w = (f64::from(p.to_f32()) - bg).max(0.0);
         s += w;
@@ -102,20 +118,42 @@ pub fn flank_asymmetry<T: Pixel>(line: &[T], p: &Peak) -> f64 {
     // floating-point maxima, which marking pays on every point.
     let last = line.len().saturating_sub(1);
     let from = p.roi_left.max(p.top_start.saturating_sub(FLANK_WINDOW));
-    let up = p.top_start.min(last);
-    let mut rise = 0i32;
-    if from < up {
-        for w in line[from..=up].windows(2) {
-            rise = rise.max(w[1].to_u32() as i32 - w[0].to_u32() as i32);
-        }
-    }
     let to = p.roi_right.min(p.top_end + FLANK_WINDOW).min(last);
-    let mut fall = 0i32;
-    if p.top_end < to {
-        for w in line[p.top_end..=to].windows(2) {
-            fall = fall.max(w[0].to_u32() as i32 - w[1].to_u32() as i32);
+    // Away from the line's ends: the FLANK_WINDOW steps on each side, those outside from..to masked to 0, over
+    // fixed-size windows in a loop that compiles without branches or bounds checks (the windows' lengths vary from
+    // point to point).
+    let windows = p.top_start.checked_sub(FLANK_WINDOW).and_then(|up| {
+        let left: &[T; FLANK_WINDOW + 1] = line.get(up..=p.top_start)?.try_into().ok()?;
+        let down = p.top_end;
+        let right: &[T; FLANK_WINDOW + 1] =
+            line.get(down..=down + FLANK_WINDOW)?.try_into().ok()?;
+        Some((up, left, down, right))
+    });
+    let (rise, fall) = if let Some((up, left, down, right)) = windows {
+        let (mut rise, mut fall) = (0i32, 0i32);
+        for j in 0..FLANK_WINDOW {
+            let r = left[j + 1].to_u32() as i32 - left[j].to_u32() as i32;
+            rise = rise.max(if up + j >= from { r } else { 0 });
+            let f = right[j].to_u32() as i32 - right[j + 1].to_u32() as i32;
+            fall = fall.max(if down + j < to { f } else { 0 });
         }
-    }
+        (rise, fall)
+    } else {
+        let up = p.top_start.min(last);
+        let mut rise = 0i32;
+        if from < up {
+            for w in line[from..=up].windows(2) {
+                rise = rise.max(w[1].to_u32() as i32 - w[0].to_u32() as i32);
+            }
+        }
+        let mut fall = 0i32;
+        if p.top_end < to {
+            for w in line[p.top_end..=to].windows(2) {
+                fall = fall.max(w[0].to_u32() as i32 - w[1].to_u32() as i32);
+            }
+        }
+        (rise, fall)
+    };
     if rise + fall > 0 {
         (f64::from(rise - fall) / f64::from(rise + fall)).abs()
     } else {
@@ -124,6 +162,7 @@ pub fn flank_asymmetry<T: Pixel>(line: &[T], p: &Peak) -> f64 {
 }
 
 /// The three values around the peak, background subtracted: a = f(x-1), b = f(x), c = f(x+1).
+#[inline]
 fn three<T: Pixel>(line: &[T], x: usize, bg: f64) -> (f64, f64, f64) {
     let x = x as isize;
     (at(line, x - 1) - bg, at(line, x) - bg, at(line, x + 1) - bg)
@@ -144,11 +183,9 @@ pub fn linear<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
         return Some(plateau_centre(line, p, bg));
     }
     let (a, b, c) = three(line, p.top_start, bg);
-    let d = if c > a {
-        0.5 * (c - a) / (b - a)
-    } else {
-        0.5 * (c - a) / (b - c)
-    };
+    // The lower neighbour sets the slope: b - a when c > a, else b - c (a minimum, not a branch, which the
+    // stripe's sub-pixel phase would make unpredictable).
+    let d = 0.5 * (c - a) / (b - a.min(c));
     d.is_finite().then_some(p.top_start as f64 + d)
 }
 
@@ -162,14 +199,55 @@ pub fn parabolic<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
     d.is_finite().then_some(p.top_start as f64 + d)
 }
 
+/// Levels up to this many grey levels above the background take their logarithm from a table.
+const LN_TABLE_LEN: usize = 4096;
+
+/// ln(max(v, 0.5)) for every integer level v below [`LN_TABLE_LEN`].
+#[inline]
+fn ln_table() -> &'static [f64; LN_TABLE_LEN] {
+    static TABLE: std::sync::OnceLock<[f64; LN_TABLE_LEN]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|i| (i as f64).max(0.5).ln()))
+}
+
+/// ln(max(v, 0.5)): the Gaussian estimator's logarithm of a level above the background, clamped at half a grey
+/// level, from `table` ([`ln_table`]) for the integer levels it holds (three logarithms per point were a quarter of
+/// a frame's extraction time; pixels and the background are integers, so the levels almost always are).
+#[inline]
+fn ln_level(table: &[f64], v: f64) -> f64 {
+    let i = v as usize; // saturating: negative levels and NaN give 0
+    if v <= 0.0 || (i < table.len() && i as f64 == v) {
+        table[i.min(table.len() - 1)]
+    } else {
+        v.max(0.5).ln()
+    }
+}
+
 /// Gaussian (parabola through the logarithms), values clamped at half a grey level above the background.
 pub fn gaussian<T: Pixel>(line: &[T], p: &Peak, bg: f64) -> Option<f64> {
     if p.is_plateau() {
         return Some(plateau_centre(line, p, bg));
     }
-    let (a, b, c) = three(line, p.top_start, bg);
-    let floor = 0.5;
-    let (la, lb, lc) = (a.max(floor).ln(), b.max(floor).ln(), c.max(floor).ln());
+    let table = ln_table();
+    let x = p.top_start;
+    let bgi = bg as i64;
+    let (la, lb, lc) = match line.get(x.wrapping_sub(1)..=x + 1) {
+        // The usual case, an integer background and the three pixels inside the line: integer levels, one check.
+        Some(&[a, b, c]) if bgi as f64 == bg => {
+            let ln = |p: T| {
+                let v = i64::from(p.to_u32()) - bgi;
+                match usize::try_from(v) {
+                    Ok(i) if i < LN_TABLE_LEN => table[i],
+                    Ok(_) => (v as f64).ln(),
+                    Err(_) => table[0],
+                }
+            };
+            (ln(a), ln(b), ln(c))
+        }
+        _ => {
+            let (a, b, c) = three(line, x, bg);
+            (ln_level(table, a), ln_level(table, b), ln_level(table, c))
+        }
+    };
     let d = 0.5 * (la - lc) / (la - 2.0 * lb + lc);
     (d.is_finite() && d.abs() <= 1.0).then_some(p.top_start as f64 + d)
 }
@@ -180,7 +258,24 @@ pub fn blais_rioux<T: Pixel>(line: &[T], p: &Peak, half: isize) -> Option<f64> {
     let g = |i: isize| -> f64 { (1..=half).map(|k| at(line, i - k) - at(line, i + k)).sum() };
     let x = p.center() as isize;
     let (a, c) = (at(line, x - 1), at(line, x + 1));
-    let (g0, gl, gr) = (g(x), g(x - 1), g(x + 1));
+    // Away from the line's ends the sums in integers (exact, as the floating-point sums of integers are).
+    let window = usize::try_from(half).ok().and_then(|h| {
+        let w = line.get(p.center().checked_sub(h + 1)?..=p.center() + h + 1)?;
+        Some((h, w))
+    });
+    let (g0, gl, gr) = match window {
+        Some((h, w)) => {
+            // w[h + 1] is the centre pixel.
+            let gi = |c: usize| -> f64 {
+                let sum: i64 = (1..=h)
+                    .map(|k| i64::from(w[c - k].to_u32()) - i64::from(w[c + k].to_u32()))
+                    .sum();
+                sum as f64
+            };
+            (gi(h + 1), gi(h), gi(h + 2))
+        }
+        None => (g(x), g(x - 1), g(x + 1)),
+    };
     let est = if c > a {
         x as f64 + g0 / (g0 - gr)
     } else if c < a {
@@ -334,5 +429,152 @@ mod tests {
             }
         }
         assert!(checked > 300, "{checked}");
+    }
+
+    #[test]
+    fn tabled_logarithms_equal_ln() {
+        let values = (-3..5000).map(f64::from).chain([
+            0.25,
+            0.5,
+            0.75,
+            1.5,
+            4095.5,
+            1e9,
+            -1e9,
+            f64::NAN,
+            f64::INFINITY,
+        ]);
+        for v in values {
+            let l = ln_level(ln_table(), v);
+            assert_eq!(l.to_bits(), v.max(0.5).ln().to_bits(), "{v}");
+        }
+    }
+
+    #[test]
+    fn gaussian_on_integer_levels_equals_the_formula() {
+        // The integer-level path against the estimator as written in floating point, bit for bit, on random
+        // lines with integer and fractional backgrounds and peaks at the ends.
+        let mut rng = 0x1234_5678u32;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            rng
+        };
+        let mut checked = 0;
+        for case in 0..3000 {
+            let line: Vec<u16> = (0..12).map(|_| (next() % 6000) as u16).collect();
+            let top = (next() % 12) as usize;
+            let p = Peak {
+                top_start: top,
+                top_end: top,
+                value: u32::from(line[top]),
+                roi_left: 0,
+                roi_right: 11,
+            };
+            let bg = if case % 3 == 0 {
+                f64::from(next() % 3000) + 0.5
+            } else {
+                f64::from(next() % 3000)
+            };
+            let (a, b, c) = three(&line, top, bg);
+            let (la, lb, lc) = (a.max(0.5).ln(), b.max(0.5).ln(), c.max(0.5).ln());
+            let d = 0.5 * (la - lc) / (la - 2.0 * lb + lc);
+            let want = (d.is_finite() && d.abs() <= 1.0).then_some(top as f64 + d);
+            let got = gaussian(&line, &p, bg);
+            assert_eq!(
+                got.map(f64::to_bits),
+                want.map(f64::to_bits),
+                "{line:?} {top} {bg}"
+            );
+            checked += usize::from(want.is_some());
+        }
+        assert!(checked > 100, "{checked}");
+    }
+
+    #[test]
+    fn integer_centre_of_mass_equals_the_floating_point_sums() {
+        let mut rng = 0x5151_7a7au32;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            rng
+        };
+        for case in 0..2000 {
+            let line: Vec<u16> = (0..40).map(|_| (next() % 65536) as u16).collect();
+            let (lo, hi) = ((next() % 40) as usize, (next() % 45) as usize);
+            let bg = match case % 3 {
+                0 => f64::from(next() % 65536),
+                1 => f64::from(next() % 65536) + 0.25,
+                _ => -1.0,
+            };
+            let (mut s, mut sx) = (0.0, 0.0);
+            for (i, &q) in line.iter().enumerate().take(hi + 1).skip(lo) {
+                let w = (f64::from(q) - bg).max(0.0);
+                s += w;
+                sx += w * i as f64;
+            }
+            let want = (s > 0.0).then(|| sx / s);
+            let got = centre_of_mass(&line, lo, hi, bg);
+            assert_eq!(
+                got.map(f64::to_bits),
+                want.map(f64::to_bits),
+                "{lo}..={hi} over {bg}"
+            );
+        }
+    }
+
+    #[test]
+    fn integer_blais_rioux_sums_equal_the_floating_point_ones() {
+        let reference = |line: &[u16], p: &Peak, half: isize| {
+            let g =
+                |i: isize| -> f64 { (1..=half).map(|k| at(line, i - k) - at(line, i + k)).sum() };
+            let x = p.center() as isize;
+            let (a, c) = (at(line, x - 1), at(line, x + 1));
+            let (g0, gl, gr) = (g(x), g(x - 1), g(x + 1));
+            let est = if c > a {
+                x as f64 + g0 / (g0 - gr)
+            } else if c < a {
+                (x - 1) as f64 + gl / (gl - g0)
+            } else if g0 == 0.0 {
+                x as f64
+            } else if g0 < 0.0 {
+                x as f64 + g0 / (g0 - gr)
+            } else {
+                (x - 1) as f64 + gl / (gl - g0)
+            };
+            (est.is_finite() && (est - x as f64).abs() <= 1.0).then_some(est)
+        };
+        let mut rng = 0x7777_1111u32;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            rng
+        };
+        let mut checked = 0;
+        for _ in 0..3000 {
+            let line: Vec<u16> = (0..16).map(|_| (next() % 65536) as u16).collect();
+            let top = (next() % 16) as usize;
+            let p = Peak {
+                top_start: top,
+                top_end: top,
+                value: u32::from(line[top]),
+                roi_left: 0,
+                roi_right: 15,
+            };
+            for half in [2, 4] {
+                let want = reference(&line, &p, half);
+                let got = blais_rioux(&line, &p, half);
+                assert_eq!(
+                    got.map(f64::to_bits),
+                    want.map(f64::to_bits),
+                    "{line:?} {top}"
+                );
+                checked += usize::from(want.is_some());
+            }
+        }
+        assert!(checked > 100, "{checked}");
     }
 }
