@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use clap::Subcommand;
-use std::io::Read;
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use stripe3d_fuzzy::{Engine, FuzzyError, fcl, fld, fll};
 
@@ -99,11 +99,14 @@ pub fn run(cmd: &FuzzyCommand) -> Result<()> {
                 FuzzyError::Syntax { line, message } => anyhow::anyhow!("{name}:{line}: {message}"),
                 other => anyhow::anyhow!("{name}: {other}"),
             })?;
-            print!("{out}");
+            // Checked, not `print!`: a reader that stops early ends the run quietly (main), not with a panic.
+            std::io::stdout().lock().write_all(out.as_bytes())?;
             Ok(())
         }
         FuzzyCommand::Export { engine } => {
-            print!("{}", fll::write(&load_engine(engine)?));
+            std::io::stdout()
+                .lock()
+                .write_all(fll::write(&load_engine(engine)?).as_bytes())?;
             Ok(())
         }
     }

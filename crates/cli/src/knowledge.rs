@@ -6,6 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use stripe3d_core::detect::DefectKind;
 use stripe3d_io::history::{Feedback, Filter, History, Judgement, default_path};
@@ -269,9 +270,14 @@ pub fn run_history(a: &HistoryArgs) -> Result<()> {
             .map(|(c, v)| format!("{c} ({v:.2})"))
             .unwrap_or_default()
     };
+    // Buffered, and every write checked: a history can be long, and a reader that stops early (`| head`) ends
+    // the listing quietly (main) instead of a panic in `println!`.
+    let stdout = std::io::stdout();
+    let mut w = std::io::BufWriter::new(stdout.lock());
     match a.format {
         Format::Table => {
-            println!(
+            writeln!(
+                w,
                 "{:>5}  {:<20}  {:<22}  {:<14}  {:<10}  {:>7}  {:<28}  {:>8}",
                 "id",
                 "time (UTC)",
@@ -281,9 +287,10 @@ pub fn run_history(a: &HistoryArgs) -> Result<()> {
                 "defects",
                 "probable cause",
                 "feedback"
-            );
+            )?;
             for r in &rows {
-                println!(
+                writeln!(
+                    w,
                     "{:>5}  {:<20}  {:<22}  {:<14}  {:<10}  {:>7}  {:<28}  {:>8}",
                     r.id,
                     r.time_utc,
@@ -293,17 +300,19 @@ pub fn run_history(a: &HistoryArgs) -> Result<()> {
                     r.defects,
                     top(r),
                     r.feedback
-                );
+                )?;
             }
-            println!("{} inspection(s) in {}", rows.len(), path.display());
+            writeln!(w, "{} inspection(s) in {}", rows.len(), path.display())?;
         }
         Format::Csv => {
-            println!(
+            writeln!(
+                w,
                 "id,time_utc,part_id,product,method,kb_version,verdict,defects,top_cause,top_certainty,feedback,report_dir"
-            );
+            )?;
             for r in &rows {
                 let (c, v) = r.diagnosis.first().cloned().unwrap_or_default();
-                println!(
+                writeln!(
+                    w,
                     "{},{},{},{},{},{},{},{},{},{},{},{}",
                     r.id,
                     r.time_utc,
@@ -321,7 +330,7 @@ pub fn run_history(a: &HistoryArgs) -> Result<()> {
                     },
                     r.feedback,
                     csv_field(r.report_dir.as_deref().unwrap_or(""))
-                );
+                )?;
             }
         }
         Format::Json => {
@@ -336,9 +345,11 @@ pub fn run_history(a: &HistoryArgs) -> Result<()> {
                     })
                 })
                 .collect();
-            println!("{}", serde_json::to_string_pretty(&v)?);
+            writeln!(w, "{}", serde_json::to_string_pretty(&v)?)?;
         }
     }
+    w.flush()?;
+    drop(w);
     if a.diagnose {
         let parts: Vec<Vec<stripe3d_kb::CauseCertainty>> = rows
             .iter()

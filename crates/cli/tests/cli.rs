@@ -240,6 +240,24 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
     let f1 = sim.join("frames/frame_00001.png");
     let (f0, f1) = (f0.to_str().expect("utf8"), f1.to_str().expect("utf8"));
 
+    // A reader that stops early (`| head`): a quiet, successful end, not an error or a panic.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stripe3d"))
+        .args(["extract", f0, f1])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    {
+        use std::io::Read as _;
+        let mut head = [0u8; 100];
+        let mut out = child.stdout.take().expect("stdout");
+        out.read_exact(&mut head).expect("the first lines");
+        assert!(head.starts_with(b"frame,row,x"));
+    }
+    let o = child.wait_with_output().expect("wait");
+    assert!(o.status.success(), "{:?}: {}", o.status, stderr(&o));
+    assert!(o.stderr.is_empty(), "{}", stderr(&o));
+
     let o = stripe3d(&["extract", f0, "--method", "blais-rioux8"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = String::from_utf8_lossy(&o.stdout).into_owned();
