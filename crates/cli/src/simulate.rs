@@ -570,3 +570,31 @@ fn extract_demo(out: &Path, sim_dir: &Path, frames: usize) -> Result<()> {
     println!("wrote {}", dir.join("points.csv").display());
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+
+        /// Any text: positions that are finite, non-decreasing and within the frame limit, or an error that
+        /// names the file.
+        #[test]
+        fn encoder_files_are_read_or_refused_by_name(
+            text in "([-+0-9.eE#a-z ]{0,12}\\n){0,20}|\\PC{0,100}",
+        ) {
+            let dir = tempfile::tempdir().expect("tmp");
+            let p = dir.path().join("enc.txt");
+            std::fs::write(&p, &text).expect("write");
+            match read_encoder(&p) {
+                Ok(v) => {
+                    proptest::prop_assert!(!v.is_empty() && v.len() <= MAX_FRAMES);
+                    proptest::prop_assert!(v.iter().all(|x| x.is_finite()));
+                    proptest::prop_assert!(v.windows(2).all(|w| w[0] <= w[1]));
+                }
+                Err(e) => proptest::prop_assert!(format!("{e:#}").contains("enc.txt"), "{e:#}"),
+            }
+        }
+    }
+}

@@ -280,4 +280,27 @@ mod tests {
             assert!(err.contains(needle), "{needle}: {err}");
         }
     }
+
+    proptest::proptest! {
+        #[test]
+        fn arbitrary_text_never_panics(text in "\\PC{0,300}") {
+            let _ = calibration_from_str(Path::new("calib.toml"), &text);
+        }
+
+        #[test]
+        fn mutated_calibrations_are_refused_with_the_file_or_read(
+            edits in proptest::collection::vec((0usize..100_000, proptest::prelude::any::<u8>()), 1..4),
+        ) {
+            let mut bytes = calibration_to_toml(&sample()).into_bytes();
+            for (pos, byte) in edits {
+                let k = pos % bytes.len();
+                bytes[k] = byte;
+            }
+            if let Ok(text) = String::from_utf8(bytes) {
+                if let Err(e) = calibration_from_str(Path::new("calib.toml"), &text) {
+                    proptest::prop_assert!(e.to_string().contains("calib.toml"), "{}", e);
+                }
+            }
+        }
+    }
 }

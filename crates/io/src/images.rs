@@ -127,16 +127,8 @@ pub struct LoadedFrame {
 
 /// Reads a grey frame keeping its bit depth (8-bit frames stay 8-bit, which extraction scans fastest).
 pub fn read_frame_native(path: &Path, max_pixels: usize) -> Result<FrameData, IoError> {
-    let f = read_frame(path)?;
+    let f = read_frame_limited(path, max_pixels)?;
     let (w, h) = (f.image.width(), f.image.height());
-    if w.saturating_mul(h) > max_pixels {
-        return Err(IoError::Image {
-            path: path.to_path_buf(),
-            message: format!(
-                "{w}x{h} pixels is more than the limit of {max_pixels}; raise it with --max-pixels"
-            ),
-        });
-    }
     Ok(if f.bits == 8 {
         let data: Vec<u8> = f.image.data().iter().map(|&v| v as u8).collect();
         FrameData::U8(Image::from_vec(w, h, data).map_err(|e| IoError::Image {
@@ -151,6 +143,12 @@ pub fn read_frame_native(path: &Path, max_pixels: usize) -> Result<FrameData, Io
 /// Reads a grey frame (PNG 8/16-bit, PGM, TIFF). Colour images are refused: a stripe camera is monochrome and a
 /// silent conversion would hide a wrong file.
 pub fn read_frame(path: &Path) -> Result<LoadedFrame, IoError> {
+    read_frame_limited(path, usize::MAX)
+}
+
+/// [`read_frame`], refusing an image of more than `max_pixels` pixels from its header, before anything is decoded
+/// (a damaged or hostile header must not make us allocate gigabytes).
+fn read_frame_limited(path: &Path, max_pixels: usize) -> Result<LoadedFrame, IoError> {
     let bad = |message: String| IoError::Image {
         path: path.to_path_buf(),
         message,
@@ -171,6 +169,11 @@ pub fn read_frame(path: &Path) -> Result<LoadedFrame, IoError> {
     if w == 0 || h == 0 || w > MAX_READ_SIDE || h > MAX_READ_SIDE {
         return Err(bad(format!(
             "{w}x{h} pixels: each side must be 1 to {MAX_READ_SIDE}"
+        )));
+    }
+    if (w as usize).saturating_mul(h as usize) > max_pixels {
+        return Err(bad(format!(
+            "{w}x{h} pixels is more than the limit of {max_pixels}; raise it with --max-pixels"
         )));
     }
     let reader = image::ImageReader::open(path)
@@ -247,5 +250,93 @@ mod tests {
         let lum = |c: [u8; 3]| u32::from(c[0]) + u32::from(c[1]) + u32::from(c[2]);
         assert!(lum(colormap(0.0)) < lum(colormap(0.5)) && lum(colormap(0.5)) < lum(colormap(1.0)));
         assert_eq!(colormap(f64::NAN), colormap(0.0));
+    }
+
+    #[test]
+    fn the_pixel_limit_is_checked_before_decoding() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let p = dir.path().join("big.png");
+        write_grey_png(&p, &Image::<u16>::new(40, 30), 8).expect("write");
+        let e = read_frame_native(&p, 1000).expect_err("over the limit");
+        assert!(
+            e.to_string().contains("40x30") && e.to_string().contains("--max-pixels"),
+            "{e}"
+        );
+        assert!(read_frame_native(&p, 1200).is_ok());
+        // A header that claims a huge image, over a few bytes of data: refused by its size, not decoded.
+        let p = dir.path().join("liar.pgm");
+        std::fs::write(&p, b"P5\n16383 16383\n255\n\x01\x02\x03").expect("write");
+        let e = read_frame_native(&p, 64 << 20).expect_err("claims 268 M pixels");
+        assert!(
+            e.to_string().contains("16383x16383") && e.to_string().contains("liar.pgm"),
+            "{e}"
+        );
+    }
+
+    /// Small valid frames in every format read: 8- and 16-bit PNG, PGM, TIFF.
+    fn valid_files() -> Vec<(&'static str, Vec<u8>)> {
+        let mut out = Vec::new();
+        let g8 = image::GrayImage::from_fn(9, 5, |x, y| image::Luma([(x * 20 + y * 7) as u8]));
+        let g16 = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(7, 6, |x, y| {
+            image::Luma([(x * 3000 + y * 11) as u16])
+        });
+        for (ext, format) in [
+            ("png", image::ImageFormat::Png),
+            ("pgm", image::ImageFormat::Pnm),
+            ("tif", image::ImageFormat::Tiff),
+        ] {
+            let mut b = std::io::Cursor::new(Vec::new());
+            g8.write_to(&mut b, format).expect("encode 8-bit");
+            out.push((ext, b.into_inner()));
+        }
+        let mut b = std::io::Cursor::new(Vec::new());
+        g16.write_to(&mut b, image::ImageFormat::Png)
+            .expect("encode 16-bit");
+        out.push(("png", b.into_inner()));
+        out
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+
+        #[test]
+        fn damaged_frames_are_refused_or_read_never_panic(
+            which in 0usize..4,
+            flips in proptest::collection::vec((0usize..4096, proptest::prelude::any::<u8>()), 0..4),
+            cut in proptest::option::of(0usize..4096),
+        ) {
+            let files = valid_files();
+            let (ext, mut bytes) = files[which].clone();
+            for (pos, byte) in flips {
+                let k = pos % bytes.len();
+                bytes[k] = byte;
+            }
+            if let Some(c) = cut {
+                bytes.truncate(c % (bytes.len() + 1));
+            }
+            let dir = tempfile::tempdir().expect("tmp");
+            let p = dir.path().join(format!("frame.{ext}"));
+            std::fs::write(&p, &bytes).expect("write");
+            match read_frame_native(&p, 1 << 20) {
+                Ok(f) => {
+                    let (w, h) = f.size();
+                    proptest::prop_assert!(w > 0 && h > 0 && w * h <= 1 << 20);
+                }
+                Err(e) => proptest::prop_assert!(e.to_string().contains("frame."), "{}", e),
+            }
+        }
+
+        #[test]
+        fn random_bytes_are_refused_with_the_name(
+            bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200),
+            ext in proptest::sample::select(vec!["png", "pgm", "tif", "bin"]),
+        ) {
+            let dir = tempfile::tempdir().expect("tmp");
+            let p = dir.path().join(format!("noise.{ext}"));
+            std::fs::write(&p, &bytes).expect("write");
+            if let Err(e) = read_frame_native(&p, 1 << 20) {
+                proptest::prop_assert!(e.to_string().contains("noise."), "{}", e);
+            }
+        }
     }
 }

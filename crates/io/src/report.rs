@@ -452,5 +452,28 @@ mod tests {
             b[k] = byte;
             let _ = range_from_json(Path::new("/nonexistent/range.json"), &String::from_utf8_lossy(&b));
         }
+
+        #[test]
+        fn damaged_range_tiffs_are_refused_by_name_or_read(
+            flips in proptest::collection::vec((0usize..4096, any::<u8>()), 1..4),
+            cut in proptest::option::of(0usize..4096),
+        ) {
+            let dir = tempfile::tempdir().expect("tmp");
+            write_range(dir.path(), &sample(), serde_json::json!({})).expect("write");
+            let tiff = dir.path().join("range.tiff");
+            let mut bytes = std::fs::read(&tiff).expect("tiff");
+            for (pos, byte) in flips {
+                let k = pos % bytes.len();
+                bytes[k] = byte;
+            }
+            if let Some(c) = cut {
+                bytes.truncate(c % (bytes.len() + 1));
+            }
+            std::fs::write(&tiff, &bytes).expect("write");
+            match read_range(dir.path()) {
+                Ok(r) => prop_assert!(r.z.len() == 12 && r.z.iter().all(|z| !z.is_infinite())),
+                Err(e) => prop_assert!(e.to_string().contains("range."), "{}", e),
+            }
+        }
     }
 }
