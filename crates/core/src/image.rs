@@ -443,13 +443,7 @@ mod tests {
 
     #[test]
     fn first_above_finds_what_position_finds() {
-        let mut rng = 0x2545_f491u32;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 17;
-            rng ^= rng << 5;
-            rng
-        };
+        let mut next = crate::test_rng(0x2545_f491u32);
         for len in [0usize, 1, 7, 8, 15, 16, 17, 31, 33, 100, 648] {
             for _ in 0..40 {
                 // Sparse bright pixels over a low background, so that every position of the first hit occurs.
@@ -486,13 +480,7 @@ mod tests {
 
     #[test]
     fn valley_marks_are_what_the_scalar_loop_marks() {
-        let mut rng = 0x9e37_79b9u32;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 17;
-            rng ^= rng << 5;
-            rng
-        };
+        let mut next = crate::test_rng(0x9e37_79b9u32);
         for len in (0usize..60).chain([647, 648]) {
             for _ in 0..10 {
                 // Few levels, so that equal neighbours (flat valleys) are common.

@@ -25,6 +25,18 @@ pub mod scan;
 pub mod sensor;
 pub mod triangulate;
 
+/// A seeded xorshift generator for the unit tests' random lines: reproducible, no dependency.
+#[cfg(test)]
+pub(crate) fn test_rng(seed: u32) -> impl FnMut() -> u32 {
+    let mut rng = seed;
+    move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        rng
+    }
+}
+
 pub use error::CoreError;
 pub use image::{Image, ImageView, Pixel};
 pub use sensor::{Camera, Conveyor, Laser, LaserPlane, Sensor};

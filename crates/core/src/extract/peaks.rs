@@ -375,13 +375,7 @@ mod tests {
     #[test]
     fn noise_is_the_median_difference() {
         // The histogram's median against sorting, on random lines of every length and spread.
-        let mut rng = 0x0bad_5eedu32;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 17;
-            rng ^= rng << 5;
-            rng
-        };
+        let mut next = crate::test_rng(0x0bad_5eedu32);
         let mut hist = Vec::new();
         for case in 0..500u32 {
             let len = 2 + (next() % 300) as usize;

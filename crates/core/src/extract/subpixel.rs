@@ -276,6 +276,13 @@ pub fn blais_rioux<T: Pixel>(line: &[T], p: &Peak, half: isize) -> Option<f64> {
         }
         None => (g(x), g(x - 1), g(x + 1)),
     };
+    blais_rioux_crossing(x, a, c, [gl, g0, gr])
+}
+
+/// The zero crossing of the Blais-Rioux filter near pixel `x` from its values `g` at x − 1, x, x + 1 and the
+/// neighbours `a` = f(x − 1), `c` = f(x + 1) that pick the side.
+fn blais_rioux_crossing(x: isize, a: f64, c: f64, g: [f64; 3]) -> Option<f64> {
+    let [gl, g0, gr] = g;
     let est = if c > a {
         x as f64 + g0 / (g0 - gr)
     } else if c < a {
@@ -401,20 +408,18 @@ mod tests {
                 0.0
             }
         };
-        let mut rng = 0x9e37_79b9u32;
+        let mut next = crate::test_rng(0x9e37_79b9);
         let mut peaks = Vec::new();
         let mut checked = 0;
         for _ in 0..300 {
             let line: Vec<u16> = (0..80)
                 .map(|_| {
-                    rng ^= rng << 13;
-                    rng ^= rng >> 17;
-                    rng ^= rng << 5;
+                    let r = next();
                     // Mostly background with bright runs: stripes, cliffs and plateaus.
-                    if rng % 7 < 2 {
-                        (rng >> 8) as u16
+                    if r % 7 < 2 {
+                        (r >> 8) as u16
                     } else {
-                        (rng % 40) as u16
+                        (r % 40) as u16
                     }
                 })
                 .collect();
@@ -450,28 +455,27 @@ mod tests {
         }
     }
 
+    /// A one-pixel top at `top` whose region of interest is the whole line.
+    fn peak_at(line: &[u16], top: usize) -> Peak {
+        Peak {
+            top_start: top,
+            top_end: top,
+            value: u32::from(line[top]),
+            roi_left: 0,
+            roi_right: line.len() - 1,
+        }
+    }
+
     #[test]
     fn gaussian_on_integer_levels_equals_the_formula() {
         // The integer-level path against the estimator as written in floating point, bit for bit, on random
         // lines with integer and fractional backgrounds and peaks at the ends.
-        let mut rng = 0x1234_5678u32;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 17;
-            rng ^= rng << 5;
-            rng
-        };
+        let mut next = crate::test_rng(0x1234_5678u32);
         let mut checked = 0;
         for case in 0..3000 {
             let line: Vec<u16> = (0..12).map(|_| (next() % 6000) as u16).collect();
             let top = (next() % 12) as usize;
-            let p = Peak {
-                top_start: top,
-                top_end: top,
-                value: u32::from(line[top]),
-                roi_left: 0,
-                roi_right: 11,
-            };
+            let p = peak_at(&line, top);
             let bg = if case % 3 == 0 {
                 f64::from(next() % 3000) + 0.5
             } else {
@@ -494,13 +498,7 @@ mod tests {
 
     #[test]
     fn integer_centre_of_mass_equals_the_floating_point_sums() {
-        let mut rng = 0x5151_7a7au32;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 17;
-            rng ^= rng << 5;
-            rng
-        };
+        let mut next = crate::test_rng(0x5151_7a7au32);
         for case in 0..2000 {
             let line: Vec<u16> = (0..40).map(|_| (next() % 65536) as u16).collect();
             let (lo, hi) = ((next() % 40) as usize, (next() % 45) as usize);
@@ -532,38 +530,14 @@ mod tests {
                 |i: isize| -> f64 { (1..=half).map(|k| at(line, i - k) - at(line, i + k)).sum() };
             let x = p.center() as isize;
             let (a, c) = (at(line, x - 1), at(line, x + 1));
-            let (g0, gl, gr) = (g(x), g(x - 1), g(x + 1));
-            let est = if c > a {
-                x as f64 + g0 / (g0 - gr)
-            } else if c < a {
-                (x - 1) as f64 + gl / (gl - g0)
-            } else if g0 == 0.0 {
-                x as f64
-            } else if g0 < 0.0 {
-                x as f64 + g0 / (g0 - gr)
-            } else {
-                (x - 1) as f64 + gl / (gl - g0)
-            };
-            (est.is_finite() && (est - x as f64).abs() <= 1.0).then_some(est)
+            blais_rioux_crossing(x, a, c, [g(x - 1), g(x), g(x + 1)])
         };
-        let mut rng = 0x7777_1111u32;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 17;
-            rng ^= rng << 5;
-            rng
-        };
+        let mut next = crate::test_rng(0x7777_1111u32);
         let mut checked = 0;
         for _ in 0..3000 {
             let line: Vec<u16> = (0..16).map(|_| (next() % 65536) as u16).collect();
             let top = (next() % 16) as usize;
-            let p = Peak {
-                top_start: top,
-                top_end: top,
-                value: u32::from(line[top]),
-                roi_left: 0,
-                roi_right: 15,
-            };
+            let p = peak_at(&line, top);
             for half in [2, 4] {
                 let want = reference(&line, &p, half);
                 let got = blais_rioux(&line, &p, half);
