@@ -21,15 +21,22 @@ const TARGET_CENTROID_MM: f64 = 0.5;
 const TARGET_AREA: f64 = 0.15;
 const TARGET_DEPTH_MM: f64 = 0.03;
 
-/// Inspects a range image of a plate against a fitted plane with the shipped rules and default parameters.
-pub fn inspect_plate(range: &RangeImage) -> Result<(Vec<Defect>, Vec<String>)> {
+/// Inspects a range image of a plate scanned with `travel_step_mm` between frames against a fitted plane with the
+/// shipped rules and default parameters.
+pub fn inspect_plate(
+    range: &RangeImage,
+    travel_step_mm: f64,
+) -> Result<(Vec<Defect>, Vec<String>)> {
     let mut rules = SurfaceRules::shipped()?;
     let i = inspect(
         range,
         ReferenceSource::Fit(ReferenceShape::Plane),
         &CharacterizeParams::default(),
         &mut rules,
-        &DetectParams::default(),
+        &DetectParams {
+            travel_step_mm: Some(travel_step_mm),
+            ..DetectParams::default()
+        },
     )?;
     Ok((i.detection.defects, i.detection.warnings))
 }
@@ -48,8 +55,11 @@ fn scan_and_inspect(
     };
     let scan = scan_scene(sensor, cal, scene, frames, opts, grid)
         .with_context(|| format!("scanning {}", scene.name))?;
+    // The conveyor `scan_scene` moves the part with.
+    let conveyor = sensor.conveyor.clone().unwrap_or_default();
+    let step = conveyor.travel_mm(1) - conveyor.travel_mm(0);
     let (found, warnings) =
-        inspect_plate(&scan.range).with_context(|| format!("inspecting {}", scene.name))?;
+        inspect_plate(&scan.range, step).with_context(|| format!("inspecting {}", scene.name))?;
     let mut out = match_defects(scan.simulator.defects(), &found);
     out.warnings = warnings;
     Ok(out)

@@ -2,7 +2,8 @@
 //! defects, and write `report.json` with the pictures.
 
 use crate::scan::{
-    ScanResult, default_grid, extract_params, frame_list, scan_frames, travels, write_scan,
+    ScanResult, default_grid, extract_params, frame_list, scan_frames, travel_step, travels,
+    write_scan,
 };
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
@@ -19,7 +20,7 @@ use stripe3d_io::files::{prepare_dir, read_text};
 use stripe3d_io::history::{CandidateRecord, History, InspectionRecord, default_path};
 use stripe3d_io::knowledge::{kb_root_of, read_kb};
 use stripe3d_io::report::{
-    defects_picture, deviation_picture, read_range, write_picture, write_report,
+    defects_picture, deviation_picture, range_travel_step, read_range, write_picture, write_report,
 };
 use stripe3d_io::{read_calibration, read_sensor};
 use stripe3d_kb::reason::{frame_origin, part_facts, recurrence};
@@ -411,10 +412,14 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         Some(p) => Some(read_range(p).with_context(|| format!("--reference {}", p.display()))?),
         None => None,
     };
-    let (range, input) = if is_range_input(&args.frames) {
+    let (range, input, travel_step_mm) = if is_range_input(&args.frames) {
         let r = read_range(&args.frames[0])?;
         prepare_dir(&args.out)?;
-        (r, format!("range image {}", args.frames[0].display()))
+        (
+            r,
+            format!("range image {}", args.frames[0].display()),
+            range_travel_step(&args.frames[0]),
+        )
     } else {
         let (Some(sensor_path), Some(calib_path)) = (&args.sensor, &args.calib) else {
             bail!(
@@ -455,7 +460,11 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             grid,
         )?;
         write_scan(&args.out, &res, &frames, &travel, ModelKind::Full, range_mm)?;
-        (res.range, format!("{} frames", frames.len()))
+        (
+            res.range,
+            format!("{} frames", frames.len()),
+            travel_step(&travel),
+        )
     };
     let shape = match args.shape {
         Some(ShapeArg::Plane) => ReferenceShape::Plane,
@@ -478,6 +487,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             .map_or(DetectParams::default().min_confidence, |m| {
                 m.surface.min_confidence
             }),
+        travel_step_mm,
         ..DetectParams::default()
     };
     let started = Instant::now();

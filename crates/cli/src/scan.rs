@@ -260,6 +260,16 @@ fn parse_range(s: &str) -> Result<(f64, f64)> {
     Ok((lo, hi))
 }
 
+/// The typical conveyor travel between frames (the median step), mm; `None` with fewer than two frames.
+pub fn travel_step(travel: &[f64]) -> Option<f64> {
+    let mut steps: Vec<f64> = travel.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return None;
+    }
+    steps.sort_by(f64::total_cmp);
+    Some(steps[steps.len() / 2])
+}
+
 /// Travel (mm since frame 0) of each of `n` frames.
 pub fn travels(sensor: &Sensor, encoder: Option<&Path>, n: usize) -> Result<Vec<f64>> {
     if let Some(enc) = encoder {
@@ -434,6 +444,7 @@ pub fn write_scan(
         json!({
             "frames": frames.len(),
             "travel_mm": [travel.first().copied().unwrap_or(0.0), travel.last().copied().unwrap_or(0.0)],
+            "frame_step_mm": travel_step(travel),
             "model": model.name(),
             "coding_range_mm": [range_mm.0, range_mm.1],
             "points": n,

@@ -156,6 +156,10 @@ pub struct DetectParams {
     pub min_confidence: f64,
     /// Most candidates evaluated (a guard against a wildly wrong reference).
     pub max_candidates: usize,
+    /// Conveyor travel between frames, mm (the sampling step along x), when known. The last sample before a hole
+    /// lies anywhere up to a step short of its rim, and the first after it as far beyond: a hole's measured area
+    /// is corrected by the expected excess on each side that ends on measured surface ([`hole_area`]).
+    pub travel_step_mm: Option<f64>,
 }
 
 impl Default for DetectParams {
@@ -171,6 +175,7 @@ impl Default for DetectParams {
             min_seen_share: 0.3,
             min_confidence: 0.5,
             max_candidates: 500,
+            travel_step_mm: None,
         }
     }
 }
@@ -1311,13 +1316,16 @@ pub fn detect(
         if let Some(c) = out.candidates.last_mut() {
             c.defect = Some(out.defects.len());
         }
+        let measured = hole_area(range, cells, params.travel_step_mm);
         out.defects.push(Defect {
             kind,
             centroid_mm: s.centroid,
             bbox_mm: s.bbox,
-            area_mm2: area,
+            area_mm2: measured,
             depth_mm: reference - floor,
-            volume_mm3: refs.iter().map(|r| (r - floor).max(0.0)).sum::<f64>() * cell_area,
+            volume_mm3: refs.iter().map(|r| (r - floor).max(0.0)).sum::<f64>()
+                * cell_area
+                * (measured / area),
             confidence,
             bottom_seen,
             evidence: ev,
@@ -1618,10 +1626,109 @@ fn measure_bell(
     ];
 }
 
+/// The area of a gap (cells of the range image), mm², corrected for the sampling along x when the travel step is
+/// known: on each grid row, a run of gap cells that ends on measured surface ends on average half a step minus
+/// half a cell outside the true edge (the last sample before the edge lies uniformly within one step of it, and a
+/// sample's cell reaches half a cell beyond it), so the run is shortened by that much at each such end.
+fn hole_area(range: &RangeImage, cells: &[usize], travel_step_mm: Option<f64>) -> f64 {
+    let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
+    let raw = cells.len() as f64 * cell_area;
+    let Some(step) = travel_step_mm.filter(|s| s.is_finite() && *s > 0.0) else {
+        return raw;
+    };
+    let dx = range.spacing_mm[0];
+    let excess = (0.5 * (step - dx)).max(0.0) / dx; // cells at each measured end
+    if excess == 0.0 || cells.is_empty() {
+        return raw;
+    }
+    let w = range.width;
+    let measured = |i: usize, j: usize| range.z[j * w + i].is_finite();
+    let mut sorted = cells.to_vec();
+    sorted.sort_unstable();
+    let mut total = 0.0;
+    let mut k = 0;
+    while k < sorted.len() {
+        // A run of consecutive cells on one grid row.
+        let (j, i0) = (sorted[k] / w, sorted[k] % w);
+        let mut i1 = i0;
+        while k + 1 < sorted.len() && sorted[k + 1] == j * w + i1 + 1 && i1 + 1 < w {
+            k += 1;
+            i1 += 1;
+        }
+        k += 1;
+        let ends = usize::from(i0 > 0 && measured(i0 - 1, j))
+            + usize::from(i1 + 1 < w && measured(i1 + 1, j));
+        let len = (i1 - i0 + 1) as f64;
+        total += (len - ends as f64 * excess).max(0.0);
+    }
+    total * cell_area
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::collections::VecDeque;
+
+    #[test]
+    fn hole_areas_are_corrected_for_the_travel_step() {
+        use crate::accumulate::{Profile, ProfilePoint, RangeGrid, RangeParams};
+        // A 10 mm plate with a 2.5 mm x 4.4 mm slot, sampled as one stripe sweeps it: every 0.5 mm along x (at
+        // one phase for the whole scan), on every grid row; no sample falls in the slot. (A slot, not a round
+        // hole: where a round hole's chord is shorter than the accumulation's fill distance, its caps are filled
+        // over and lost, which no correction of the measured rows can see.)
+        let (step, w, h) = (0.5, 2.5, 4.4);
+        let truth = w * h;
+        let (mut raw_err, mut corrected_err) = (0.0f64, 0.0f64);
+        let phases = [0.0, 0.1, 0.2, 0.3, 0.4];
+        for phase in phases {
+            let profiles: Vec<Profile> = (0..40)
+                .map(|k| {
+                    let x = -10.0 + phase + k as f64 * step;
+                    Profile {
+                        frame: k,
+                        travel_mm: k as f64 * step,
+                        points: (0..100)
+                            .map(|row| (row, -11.11 + 0.22 * row as f64))
+                            .filter(|&(_, y)| x.abs() > 0.5 * w || y.abs() > 0.5 * h)
+                            .map(|(row, y)| ProfilePoint {
+                                stripe: 0,
+                                row,
+                                u: 0.0,
+                                x_mm: x,
+                                y_mm: y,
+                                z_mm: 10.0,
+                                intensity: 100.0,
+                            })
+                            .collect(),
+                    }
+                })
+                .collect();
+            let params = RangeParams {
+                spacing_mm: [0.22, 0.22],
+                ..RangeParams::default()
+            };
+            let mut grid = RangeGrid::covering(&profiles, params).expect("grid");
+            grid.accumulate(&profiles);
+            let range = grid.image();
+            // The slot: the unmeasured cells within 4 mm of its centre.
+            let slot: Vec<usize> = (0..range.width * range.height)
+                .filter(|&k| {
+                    let x = range.origin_mm[0] + (k % range.width) as f64 * 0.22;
+                    let y = range.origin_mm[1] - (k / range.width) as f64 * 0.22;
+                    x.hypot(y) < 4.0 && range.z[k].is_nan()
+                })
+                .collect();
+            let n = phases.len() as f64;
+            raw_err += (hole_area(&range, &slot, None) - truth) / truth / n;
+            corrected_err += (hole_area(&range, &slot, Some(step)) - truth) / truth / n;
+        }
+        // Uncorrected, the slot is one step less a cell longer along x than it is (0.28 mm on 2.5: +11%).
+        assert!(raw_err > 0.08, "raw {raw_err}, corrected {corrected_err}");
+        assert!(
+            corrected_err.abs() < 0.03,
+            "corrected {corrected_err}, raw {raw_err}"
+        );
+    }
 
     const NEIGHBOURS8: [(i64, i64); 8] = [
         (-1, 0),

@@ -23,6 +23,28 @@ pub fn read_range(path: &Path) -> Result<RangeImage, IoError> {
     range_from_json(&json_path, &text)
 }
 
+/// The conveyor travel between frames of the scan a range image came from, mm, as its `range.json` records it
+/// (`frame_step_mm`, or the travel over the frames for files written before that field): `None` when the file does
+/// not say (a range image from elsewhere). `path` as for [`read_range`].
+pub fn range_travel_step(path: &Path) -> Option<f64> {
+    let json_path: PathBuf = if path.is_dir() {
+        path.join("range.json")
+    } else {
+        path.to_path_buf()
+    };
+    let doc: serde_json::Value = serde_json::from_str(&read_text(&json_path).ok()?).ok()?;
+    let step = doc
+        .get("frame_step_mm")
+        .and_then(serde_json::Value::as_f64)
+        .or_else(|| {
+            let t = doc.get("travel_mm")?.as_array()?;
+            let frames = doc.get("frames")?.as_u64()?;
+            let (a, b) = (t.first()?.as_f64()?, t.get(1)?.as_f64()?);
+            (frames >= 2).then(|| (b - a) / (frames - 1) as f64)
+        })?;
+    (step.is_finite() && step > 0.0).then_some(step)
+}
+
 fn invalid(path: &Path, field: &str, message: impl Into<String>) -> IoError {
     IoError::Invalid {
         path: path.to_path_buf(),
@@ -411,6 +433,36 @@ mod tests {
         assert_eq!(back.spacing_mm, r.spacing_mm);
         assert_eq!((back.width, back.height), (4, 3));
         assert!(back.z[2].is_nan() && back.z[11] == 12.0);
+    }
+
+    #[test]
+    fn the_travel_step_comes_from_range_json() {
+        let dir = tempfile::tempdir().expect("tmp");
+        write_range(
+            dir.path(),
+            &sample(),
+            serde_json::json!({"frame_step_mm": 0.5}),
+        )
+        .expect("write");
+        assert_eq!(range_travel_step(dir.path()), Some(0.5));
+        // Files written before the field: from the travel over the frames.
+        write_range(
+            dir.path(),
+            &sample(),
+            serde_json::json!({"frames": 22, "travel_mm": [0.0, 10.5]}),
+        )
+        .expect("write");
+        assert_eq!(range_travel_step(&dir.path().join("range.json")), Some(0.5));
+        // A range image from elsewhere, one frame, or nonsense: unknown.
+        for meta in [
+            serde_json::json!({}),
+            serde_json::json!({"frames": 1, "travel_mm": [0.0, 0.0]}),
+            serde_json::json!({"frame_step_mm": -1.0}),
+        ] {
+            write_range(dir.path(), &sample(), meta).expect("write");
+            assert_eq!(range_travel_step(dir.path()), None);
+        }
+        assert_eq!(range_travel_step(&dir.path().join("missing.json")), None);
     }
 
     #[test]

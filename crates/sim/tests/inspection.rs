@@ -20,12 +20,18 @@ fn defects_are_found_named_and_measured_and_clean_plates_stay_clean() {
             ..RenderOptions::default()
         };
         let scan = scan_scene(&sensor, &cal, scene, frames, opts, [0.22, 0.22]).expect("scan");
+        // The travel between frames of the conveyor `scan_scene` moves the part with (hole areas use it).
+        let conveyor = sensor.conveyor.clone().unwrap_or_default();
+        let params = DetectParams {
+            travel_step_mm: Some(conveyor.travel_mm(1) - conveyor.travel_mm(0)),
+            ..DetectParams::default()
+        };
         let i = inspect(
             &scan.range,
             ReferenceSource::Fit(ReferenceShape::Plane),
             &CharacterizeParams::default(),
             rules,
-            &DetectParams::default(),
+            &params,
         )
         .expect("inspect");
         (i.detection, scan.simulator.defects().to_vec())
