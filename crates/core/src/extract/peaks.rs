@@ -10,8 +10,10 @@
 //! maximum is a dominant peak once the signal falls more than the threshold below it, having risen more than the
 //! threshold above the running minimum before it). Background is skipped: no pixel at or below the line's minimum
 //! plus the threshold can start a rise, so while looking for one the scan jumps to the next pixel above that
-//! level and folds the skipped run into the running minimum with one vectorisable reduction. A flat top
-//! (saturation) is one peak whose plateau is recorded.
+//! level; the running minimum over the skipped run is settled by its first pixel more than the threshold below the
+//! next one (one vectorisable reduction over the run only when there is none). A flat top (saturation) is one peak
+//! whose plateau is recorded. The valleys bounding each region of interest are found among the line's valley
+//! candidates (pixels at most both neighbours), marked 16 at a time ([`Pixel::valley_marks`]).
 
 use crate::image::Pixel;
 
@@ -56,7 +58,6 @@ pub fn dominant_peaks<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>)
 /// The scan; `fast` false is the plain reference (no background skip, valleys found by walking), which the tests
 /// hold the fast path to.
 fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>, fast: bool) {
-    let skip = fast;
     out.clear();
     let n = line.len();
     if n < 3 {
@@ -68,14 +69,14 @@ fn dominant_peaks_impl<T: Pixel>(line: &[T], threshold: u32, out: &mut Vec<Peak>
     let (mut top_start, mut top_end) = (0usize, 0usize);
     // No pixel at or below `level` can start a rise: a rise needs a value more than the threshold above the
     // running minimum, which is never below the line's minimum.
-    let level = if skip {
+    let level = if fast {
         T::slice_min(line).saturating_add(threshold)
     } else {
         0
     };
     let mut i = 0;
     while i < n {
-        if skip && !rising && v(line, i) <= level {
+        if fast && !rising && v(line, i) <= level {
             // Jump to the next pixel above `level` (16 bytes per step, [`Pixel::first_above`]), folding the skipped
             // pixels into the running minimum. (Chunks reduced to their maximum measured slower: with 11 stripes in
             // 648 columns the background gaps are short. A falling flank's pixels above the level go the scalar way,
@@ -308,8 +309,8 @@ mod tests {
             rng >> 8
         };
         for case in 0..2000 {
-            // Lengths across the 64-pixel words and the 16-pixel blocks; some bumps broad enough that their
-            // valleys lie words away from the top.
+            // Lengths across the 16-pixel blocks of valley marks; some bumps broad enough that their valleys lie
+            // several blocks away from the top.
             let n = 3 + (next() % 400) as usize;
             let t = [1u32, 5, 15, 40][case % 4];
             let mut line = vec![0u16; n];

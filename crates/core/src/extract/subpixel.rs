@@ -27,7 +27,8 @@ const INTEGER_COM_MAX_SPAN: usize = 1 << 14;
 pub fn centre_of_mass<T: Pixel>(line: &[T], lo: usize, hi: usize, bg: f64) -> Option<f64> {
     let hi = hi.min(line.len().saturating_sub(1));
     let bgi = bg as u32;
-    if f64::from(bgi) == bg && hi.saturating_sub(lo) < INTEGER_COM_MAX_SPAN {
+    if f64::from(bgi) == bg && hi.saturating_sub(lo) < INTEGER_COM_MAX_SPAN && line.len() <= 1 << 22
+    {
         // The usual case, an integer background: the same sums in integers, exact (and so equal to the
         // floating-point sums, whose terms are integers too, below 2^53) and without a conversion per pixel.
         let (mut s, mut sx) = (0u64, 0u64);
