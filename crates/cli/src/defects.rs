@@ -55,9 +55,8 @@ fn scan_and_inspect(
     };
     let scan = scan_scene(sensor, cal, scene, frames, opts, grid)
         .with_context(|| format!("scanning {}", scene.name))?;
-    // The conveyor `scan_scene` moves the part with.
-    let conveyor = sensor.conveyor.clone().unwrap_or_default();
-    let step = conveyor.travel_mm(1) - conveyor.travel_mm(0);
+    // The step of the conveyor `scan_scene` moves the part with.
+    let step = sensor.conveyor.clone().unwrap_or_default().step_mm();
     let (found, warnings) =
         inspect_plate(&scan.range, step).with_context(|| format!("inspecting {}", scene.name))?;
     let mut out = match_defects(scan.simulator.defects(), &found);

@@ -172,6 +172,11 @@ impl Conveyor {
     pub fn travel_mm(&self, frame: usize) -> f64 {
         self.speed_mm_s * frame as f64 / self.fps
     }
+
+    /// Belt travel between consecutive frames, in mm.
+    pub fn step_mm(&self) -> f64 {
+        self.travel_mm(1) - self.travel_mm(0)
+    }
 }
 
 mod defaults {

@@ -21,9 +21,8 @@ fn defects_are_found_named_and_measured_and_clean_plates_stay_clean() {
         };
         let scan = scan_scene(&sensor, &cal, scene, frames, opts, [0.22, 0.22]).expect("scan");
         // The travel between frames of the conveyor `scan_scene` moves the part with (hole areas use it).
-        let conveyor = sensor.conveyor.clone().unwrap_or_default();
         let params = DetectParams {
-            travel_step_mm: Some(conveyor.travel_mm(1) - conveyor.travel_mm(0)),
+            travel_step_mm: Some(sensor.conveyor.clone().unwrap_or_default().step_mm()),
             ..DetectParams::default()
         };
         let i = inspect(
