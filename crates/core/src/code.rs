@@ -642,6 +642,142 @@ struct Band {
     leftward: bool,
 }
 
+/// The cost of the stripes missing beyond a row's first or last labelled point, the quick way where the row
+/// allows it. Where every stripe of a row moves towards smaller columns as the height grows and the heights the
+/// stripes show at the image's side edges grow with the stripe index (the paper's set-up), a stripe out of view
+/// at a height is so for every stripe before it (left edge) or after it (right edge): the missing stripes' cost
+/// is then one count over the row's thresholds and one look-up of the same `f32` sum the general path adds up.
+#[derive(Debug, Clone, PartialEq)]
+struct EdgeSkips {
+    stripes: usize,
+    /// Per row: whether the quick way holds.
+    ordered: Vec<bool>,
+    /// Per row and stripe: the height at or above which the stripe is out of view left of column 0
+    /// (`z_left − rise_mm`), and the one above which it is still in view right of the last column
+    /// (`z_right + rise_mm`).
+    left_at: Vec<f32>,
+    right_at: Vec<f32>,
+    /// `left_sum[gone * (stripes + 1) + label]`: the sum over stripes `0 .. label` of the edge cost for the first
+    /// `gone` and the full cost for the rest; `right_sum[kept * (stripes + 1) + n]`: over `n` stripes, the full
+    /// cost for the first `kept` and the edge cost for the rest.
+    left_sum: Vec<f32>,
+    right_sum: Vec<f32>,
+}
+
+impl EdgeSkips {
+    fn new(bands: &[Band], stripes: usize, params: &CodingParams) -> Self {
+        let rise = params.rise_mm as f32;
+        let (edge, full) = (params.edge_skip_cost as f32, params.skip_cost as f32);
+        // A stripe whose ray at the edge misses its plane (NaN) is out of view at every height.
+        let left_at: Vec<f32> = bands
+            .iter()
+            .map(|b| {
+                if b.z_left.is_nan() {
+                    f32::NEG_INFINITY
+                } else {
+                    b.z_left - rise
+                }
+            })
+            .collect();
+        let right_at: Vec<f32> = bands
+            .iter()
+            .map(|b| {
+                if b.z_right.is_nan() {
+                    f32::INFINITY
+                } else {
+                    b.z_right + rise
+                }
+            })
+            .collect();
+        // The last stripe is never left of a point, the first never right of one.
+        let ordered = bands
+            .chunks(stripes)
+            .zip(left_at.chunks(stripes).zip(right_at.chunks(stripes)))
+            .map(|(row, (l, r))| {
+                row.iter().all(|b| b.leftward)
+                    && l[..stripes - 1].windows(2).all(|w| w[0] <= w[1])
+                    && r[1..].windows(2).all(|w| w[0] <= w[1])
+            })
+            .collect();
+        let n = stripes + 1;
+        let mut left_sum = vec![f32::NAN; n * n];
+        let mut right_sum = vec![f32::NAN; n * n];
+        for a in 0..n {
+            for b in 0..n {
+                left_sum[a * n + b] = (0..b).map(|k| if k < a { edge } else { full }).sum();
+                right_sum[a * n + b] = (0..b).map(|k| if k < a { full } else { edge }).sum();
+            }
+        }
+        Self {
+            stripes,
+            ordered,
+            left_at,
+            right_at,
+            left_sum,
+            right_sum,
+        }
+    }
+
+    /// The costs of the stripes missing before and after a point at height `z` labelled `label`, if the row is
+    /// ordered (for [`StripeCoder::left_skip`] and [`StripeCoder::right_skip`], the same values). `cursor` carries
+    /// the counts from the point's previous label: in an ordered row the height grows with the label, so each
+    /// count only moves on.
+    #[inline]
+    fn costs(
+        &self,
+        tr: &Transitions,
+        row: u32,
+        label: u16,
+        z: f32,
+        cursor: &mut EdgeCursor,
+    ) -> Option<(f32, f32)> {
+        let r = row as usize;
+        if !self.ordered[r] || z.is_nan() {
+            return None;
+        }
+        if z < cursor.z {
+            *cursor = EdgeCursor::START;
+        }
+        cursor.z = z;
+        let n = self.stripes;
+        // Sorted thresholds: the stripes out of view left are the ones whose threshold is at most z; the ones
+        // still in view right (stripes 1..) the ones whose threshold is below z.
+        let left_at = &self.left_at[r * n..][..n - 1];
+        while cursor.left < left_at.len() && left_at[cursor.left] <= z {
+            cursor.left += 1;
+        }
+        let right_at = &self.right_at[r * n + 1..][..n - 1];
+        while cursor.right < right_at.len() && right_at[cursor.right] < z {
+            cursor.right += 1;
+        }
+        let l = usize::from(label);
+        let mut left = self.left_sum[cursor.left.min(l) * (n + 1) + l];
+        // The projector is on the left in an ordered row: a rise from the belt to the point may hide every
+        // stripe before it.
+        if l > 0 && z >= tr.rise_at {
+            left = left.min(tr.rise_skip[l]);
+        }
+        let right = self.right_sum[cursor.right.saturating_sub(l) * (n + 1) + (n - 1 - l)];
+        Some((left, right))
+    }
+}
+
+/// Where [`EdgeSkips::costs`] left its counts for the point's previous label.
+#[derive(Debug, Clone, Copy)]
+struct EdgeCursor {
+    z: f32,
+    left: usize,
+    right: usize,
+}
+
+impl EdgeCursor {
+    const START: Self = Self {
+        z: f32::NEG_INFINITY,
+        left: 0,
+        right: 0,
+    };
+}
+
 /// One candidate (point, label) of a row.
 #[derive(Debug, Clone, Copy)]
 struct Item {
@@ -649,12 +785,23 @@ struct Item {
     j: u16,
     label: u16,
     z: f32,
+    /// +1 when the label's stripe moves towards smaller columns as the height grows on this row, −1 otherwise.
+    sign: f32,
     forward: f32,
     backward: f32,
     /// Cost of the stripes missing before this item when it is the row's first labelled point.
     start: f32,
     /// Cost of the stripes missing after it when it is the last.
     end: f32,
+}
+
+/// An item with a finite backward cost, as the backward pass reads it.
+#[derive(Debug, Clone, Copy)]
+struct Back {
+    label: u16,
+    z: f32,
+    sign: f32,
+    backward: f32,
 }
 
 /// Per-point working state of one frame.
@@ -685,43 +832,85 @@ struct SegmentState {
     taken_row: u32,
 }
 
-/// The costs of a row's transitions between labelled points, with the row's bands at hand.
-struct Transitions<'a> {
-    params: &'a CodingParams,
-    bands: &'a [Band],
-    jump_cost: f32,
-    skip_cost: f32,
+/// The neighbouring `f32` above (`up`) or below `t` (`f32::next_up` and `next_down` are newer than this crate's
+/// minimum Rust).
+fn next_f32(t: f32, up: bool) -> f32 {
+    if t.is_nan() || t == if up { f32::INFINITY } else { f32::NEG_INFINITY } {
+        return t;
+    }
+    if t == 0.0 {
+        let tiny = f32::from_bits(1);
+        return if up { tiny } else { -tiny };
+    }
+    let bits = t.to_bits();
+    f32::from_bits(if (t > 0.0) == up { bits + 1 } else { bits - 1 })
 }
 
-impl<'a> Transitions<'a> {
-    fn new(params: &'a CodingParams, bands: &'a [Band]) -> Self {
+/// The costs of transitions between labelled points of a row, in the `f32` the row passes add them in, tabulated
+/// once per coder: the same values [`CodingParams`] defines, without `f64` conversions or branches per pair.
+#[derive(Debug, Clone, PartialEq)]
+struct Transitions {
+    /// Largest `f32` at most [`CodingParams::jump_mm`]: for an `f32` difference `d`, `d > jump_at` exactly when
+    /// `f64::from(d) > jump_mm`.
+    jump_at: f32,
+    /// Smallest `f32` at least [`CodingParams::rise_mm`]: `r >= rise_at` exactly when `f64::from(r) >= rise_mm`.
+    rise_at: f32,
+    jump_cost: f32,
+    /// Per number of stripes missing between the two points: the cost without a rise, and with one.
+    skip: [f32; MAX_STRIPES],
+    rise_skip: [f32; MAX_STRIPES],
+}
+
+impl Transitions {
+    fn new(params: &CodingParams) -> Self {
+        // Round towards the side that keeps the comparison exact (the parameters are finite, checked).
+        let below = |v: f64| {
+            let t = v as f32;
+            if f64::from(t) > v {
+                next_f32(t, false)
+            } else {
+                t
+            }
+        };
+        let above = |v: f64| {
+            let t = v as f32;
+            if f64::from(t) < v {
+                next_f32(t, true)
+            } else {
+                t
+            }
+        };
+        let skip_cost = params.skip_cost as f32;
         Self {
-            params,
-            bands,
+            jump_at: below(params.jump_mm),
+            rise_at: above(params.rise_mm),
             jump_cost: params.jump_cost as f32,
-            skip_cost: params.skip_cost as f32,
+            skip: std::array::from_fn(|n| n as f32 * skip_cost),
+            rise_skip: std::array::from_fn(|n| {
+                (params.rise_skip_cost + n as f64 * params.edge_skip_cost) as f32
+            }),
         }
     }
 
-    /// Cost of the transition between two labelled points of heights `za` and `zb`: stripes `from + 1 .. to`
-    /// missing, or the surface jumping between neighbouring stripes.
-    #[inline]
-    fn cost(&self, from: u16, to: u16, za: f32, zb: f32) -> f32 {
-        let n = u32::from(to) - u32::from(from) - 1;
+    /// Cost of the transition from a point labelled `from` at height `za` to one labelled `to` at height `zb`:
+    /// stripes `from + 1 .. to` missing (one wall hides all it hides when the surface rises away from the
+    /// projector: one event, plus a little per stripe), or the surface jumping between neighbouring stripes.
+    /// `rise_sign` is +1 when stripe `to` moves towards smaller columns as the height grows, −1 otherwise.
+    #[inline(always)]
+    fn cost(&self, from: u16, to: u16, za: f32, zb: f32, rise_sign: f32) -> f32 {
+        // Fewer than MAX_STRIPES (a power of two) stripes: the mask only spares the bounds check.
+        let n = usize::from(to - from - 1) & (MAX_STRIPES - 1);
+        let d = zb - za;
         if n == 0 {
-            return if f64::from((zb - za).abs()) > self.params.jump_mm {
+            if d.abs() > self.jump_at {
                 self.jump_cost
             } else {
                 0.0
-            };
-        }
-        let leftward = self.bands[usize::from(to)].leftward;
-        let rise = if leftward { zb - za } else { za - zb };
-        if f64::from(rise) >= self.params.rise_mm {
-            // One wall hides all the stripes it hides: one event, plus a little per stripe.
-            (self.params.rise_skip_cost + f64::from(n) * self.params.edge_skip_cost) as f32
+            }
+        } else if rise_sign * d >= self.rise_at {
+            self.rise_skip[n]
         } else {
-            n as f32 * self.skip_cost
+            self.skip[n]
         }
     }
 }
@@ -735,11 +924,27 @@ pub struct StripeCoder {
     height: u32,
     stripes: usize,
     bands: Vec<Band>,
+    edges: EdgeSkips,
     tables: FuzzyTables,
     order: Vec<u32>,
     items: Vec<Item>,
     row_start: Vec<usize>,
     outlier_marginal: Vec<f32>,
+    /// Transition costs, tabulated.
+    transitions: Transitions,
+    /// How far above the row's best labelling a min-marginal can still change a decision
+    /// ([`CodingParams::margin`] + [`CodingParams::segment_override_cost`], and a little for rounding).
+    window: f32,
+    /// Per row: the items whose forward cost is within the window (`alive`), and of those the ones whose
+    /// min-marginal is (`live`), with each point's range.
+    alive: Vec<u32>,
+    alive_start: Vec<usize>,
+    live: Vec<u32>,
+    live_start: Vec<usize>,
+    /// Per row, the items with a finite backward cost, point by point (`back_range`), as the backward pass needs
+    /// them.
+    back: Vec<Back>,
+    back_range: Vec<(usize, usize)>,
     state: Vec<PointState>,
     segments: Vec<SegmentState>,
     open: Vec<u32>,
@@ -833,6 +1038,11 @@ impl StripeCoder {
                 });
             }
         }
+        let transitions = Transitions::new(&params);
+        let edges = EdgeSkips::new(&bands, stripes, &params);
+        // Sums of row costs are rounded differently along different passes: a hundredth of a stripe's cost covers
+        // that many times over.
+        let window = (params.margin.abs() + params.segment_override_cost.abs()) as f32 + 0.01;
         Ok(Self {
             model: model.clone(),
             params,
@@ -840,11 +1050,20 @@ impl StripeCoder {
             height,
             stripes,
             bands,
+            edges,
             tables,
             order: Vec::new(),
             items: Vec::new(),
             row_start: Vec::new(),
             outlier_marginal: Vec::new(),
+            transitions,
+            window,
+            alive: Vec::new(),
+            alive_start: Vec::new(),
+            live: Vec::new(),
+            live_start: Vec::new(),
+            back: Vec::new(),
+            back_range: Vec::new(),
             state: Vec::new(),
             segments: Vec::new(),
             open: Vec::new(),
@@ -1034,6 +1253,13 @@ impl StripeCoder {
     }
 
     /// Pass 1 over the points `row_points` of one row.
+    ///
+    /// Forward and backward passes of dynamic programming give each (point, label) item the cost of the best row
+    /// labelling through it (its min-marginal). Only costs within [`StripeCoder::window`] of the row's best
+    /// labelling ever change a decision (a label is kept by a margin, alternatives are offered within
+    /// [`CodingParams::segment_override_cost`]), so the backward pass and the false-point pass visit only the
+    /// items whose forward cost is within that window: every labelling through another item costs more, so the
+    /// min-marginals within the window are exactly what the full passes give, and the ones beyond stay beyond.
     fn label_row(&mut self, points: &[StripePoint], row: u32) {
         let m = self.row_points.len();
         let q = self.params.outlier_cost as f32;
@@ -1045,75 +1271,129 @@ impl StripeCoder {
             let idx = self.row_points[j] as usize;
             let u = points[idx].x;
             let (xn, yn) = self.normalized[idx];
+            let mut cursor = EdgeCursor::START;
             for k in 0..self.stripes {
                 let b = self.band_of(row, k);
                 let uf = u as f32;
                 if !(uf >= b.u_min && uf <= b.u_max) {
                     continue;
                 }
+                let sign = if b.leftward { 1.0 } else { -1.0 };
                 if let Some(z) = self.model.height_normalized(k, xn, yn) {
                     let z = z as f32;
+                    let (left, right) = self
+                        .edges
+                        .costs(&self.transitions, row, k as u16, z, &mut cursor)
+                        .unwrap_or_else(|| {
+                            (
+                                self.left_skip(row, k as u16, z),
+                                self.right_skip(row, k as u16, z),
+                            )
+                        });
                     self.items.push(Item {
                         j: j as u16,
                         label: k as u16,
                         z,
+                        sign,
                         forward: f32::INFINITY,
                         backward: f32::INFINITY,
-                        start: q * j as f32 + self.left_skip(row, k as u16, z),
-                        end: q * (m - 1 - j) as f32 + self.right_skip(row, k as u16, z),
+                        start: q * j as f32 + left,
+                        end: q * (m - 1 - j) as f32 + right,
                     });
                 }
             }
         }
         self.row_start.push(self.items.len());
-        // The three passes below visit every pair of items at most `run + 1` points apart with growing labels
-        // (items of one point are in label order, so a pass stops or starts at the first label that fits).
-        let tr = Transitions::new(
-            &self.params,
-            &self.bands[row as usize * self.stripes..][..self.stripes],
-        );
+        // The passes below visit pairs of items at most `run + 1` points apart with growing labels (items of one
+        // point are in label order). A candidate whose cost before its transition already reaches the best found
+        // cannot improve it (transition costs are never negative): its transition is not computed.
+        let tr = &self.transitions;
         let (items, row_start) = (&mut self.items, &self.row_start);
-        // Forward: best cost of the row's left part ending with this item labelled.
+        // Forward: best cost of the row's left part ending with this item labelled (nearest points first, whose
+        // transitions skip no point and usually win).
         for bi in 0..items.len() {
             let b = items[bi];
             let jb = usize::from(b.j);
             let mut best = b.start;
-            for ja in jb.saturating_sub(run + 1)..jb {
+            for ja in (jb.saturating_sub(run + 1)..jb).rev() {
                 let gap = q * (jb - ja - 1) as f32;
                 for a in &items[row_start[ja]..row_start[ja + 1]] {
                     if a.label >= b.label {
                         break;
                     }
-                    let c = a.forward + gap + tr.cost(a.label, b.label, a.z, b.z);
-                    if c < best {
-                        best = c;
+                    let base = a.forward + gap;
+                    if base < best {
+                        let c = base + tr.cost(a.label, b.label, a.z, b.z, b.sign);
+                        if c < best {
+                            best = c;
+                        }
                     }
                 }
             }
             items[bi].forward = best;
         }
-        // Backward: best cost of the right part given this item labelled.
-        for ai in (0..items.len()).rev() {
-            let a = items[ai];
-            let ja = usize::from(a.j);
-            let mut best = a.end;
-            for jb in ja + 1..(ja + run + 2).min(m) {
-                let gap = q * (jb - ja - 1) as f32;
-                let after = &items[row_start[jb]..row_start[jb + 1]];
-                let first = after.partition_point(|b| b.label <= a.label);
-                for b in &after[first..] {
-                    let c = b.backward + gap + tr.cost(a.label, b.label, a.z, b.z);
-                    if c < best {
-                        best = c;
+        // The row's best labelling (no point labelled at all: every stripe missing), and the items within the
+        // window of it.
+        let nothing = q * m as f32 + self.stripes as f32 * self.params.skip_cost as f32;
+        let limit = items
+            .iter()
+            .fold(nothing, |g, it| g.min(it.forward + it.end))
+            + self.window;
+        self.alive.clear();
+        self.alive_start.clear();
+        for j in 0..m {
+            self.alive_start.push(self.alive.len());
+            self.alive.extend(
+                (row_start[j]..row_start[j + 1])
+                    .filter(|&i| items[i].forward <= limit)
+                    .map(|i| i as u32),
+            );
+        }
+        self.alive_start.push(self.alive.len());
+        let (alive, alive_start) = (&self.alive, &self.alive_start);
+        // Backward: best cost of the right part given this item labelled, where it keeps the item within the
+        // window; beyond that only "beyond" matters (infinity), so candidates that cannot come below it are not
+        // computed either. Points right to left; each point's items with a finite cost are then copied together
+        // (`back`), the only ones the points before it need.
+        self.back.clear();
+        self.back_range.clear();
+        self.back_range.resize(m, (0, 0));
+        for ja in (0..m).rev() {
+            let first = self.back.len();
+            for &ai in alive[alive_start[ja]..alive_start[ja + 1]].iter() {
+                let a = items[ai as usize];
+                let cap = limit - a.forward;
+                let mut best = a.end.min(cap);
+                for jb in ja + 1..(ja + run + 2).min(m) {
+                    let gap = q * (jb - ja - 1) as f32;
+                    let (s, e) = self.back_range[jb];
+                    for b in &self.back[s..e] {
+                        if b.label <= a.label {
+                            continue;
+                        }
+                        let base = b.backward + gap;
+                        if base < best {
+                            let c = base + tr.cost(a.label, b.label, a.z, b.z, b.sign);
+                            if c < best {
+                                best = c;
+                            }
+                        }
                     }
                 }
+                if best < cap {
+                    items[ai as usize].backward = best;
+                    self.back.push(Back {
+                        label: a.label,
+                        z: a.z,
+                        sign: a.sign,
+                        backward: best,
+                    });
+                }
             }
-            items[ai].backward = best;
+            self.back_range[ja] = (first, self.back.len());
         }
         // Min-marginals of "point j is false".
         self.outlier_marginal.clear();
-        // No point labelled at all: every stripe missing.
-        let nothing = q * m as f32 + self.stripes as f32 * self.params.skip_cost as f32;
         self.outlier_marginal.resize(m, nothing);
         let mut prefix = f32::INFINITY; // best cost ending the labelling at a point left of j
         for j in 0..m {
@@ -1133,23 +1413,53 @@ impl StripeCoder {
             }
             self.outlier_marginal[j] = self.outlier_marginal[j].min(suffix);
         }
-        // Labellings that declare the points strictly between two labelled ones false.
+        // Labellings that declare the points strictly between two labelled ones false: only items whose own
+        // min-marginal is within the window can be on such a labelling within it.
+        self.live.clear();
+        self.live_start.clear();
+        for j in 0..m {
+            self.live_start.push(self.live.len());
+            self.live.extend(
+                alive[alive_start[j]..alive_start[j + 1]]
+                    .iter()
+                    .copied()
+                    .filter(|&i| {
+                        let it = &items[i as usize];
+                        it.forward + it.backward <= limit
+                    }),
+            );
+        }
+        self.live_start.push(self.live.len());
+        let (live, live_start) = (&self.live, &self.live_start);
         for ja in 0..m {
+            let before = &live[live_start[ja]..live_start[ja + 1]];
+            if before.is_empty() {
+                continue;
+            }
             for jb in ja + 2..(ja + run + 2).min(m) {
                 let gap = q * (jb - ja - 1) as f32;
-                let after = &items[row_start[jb]..row_start[jb + 1]];
-                let mut best = f32::INFINITY;
-                for a in &items[row_start[ja]..row_start[ja + 1]] {
-                    let first = after.partition_point(|b| b.label <= a.label);
-                    for b in &after[first..] {
-                        let c = a.forward + gap + tr.cost(a.label, b.label, a.z, b.z) + b.backward;
+                let after = &live[live_start[jb]..live_start[jb + 1]];
+                // Only a labelling within the window counts; one whose cost without its transition already
+                // reaches the best is not computed.
+                let mut best = limit;
+                for &ai in before {
+                    let a = &items[ai as usize];
+                    let base = a.forward + gap;
+                    for &bi in after {
+                        let b = &items[bi as usize];
+                        if b.label <= a.label || base + b.backward >= best {
+                            continue;
+                        }
+                        let c = base + tr.cost(a.label, b.label, a.z, b.z, b.sign) + b.backward;
                         if c < best {
                             best = c;
                         }
                     }
                 }
-                for o in &mut self.outlier_marginal[ja + 1..jb] {
-                    *o = o.min(best);
+                if best < limit {
+                    for o in &mut self.outlier_marginal[ja + 1..jb] {
+                        *o = o.min(best);
+                    }
                 }
             }
         }
@@ -1700,6 +2010,171 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The transition cost as [`CodingParams`] defines it, in `f64` comparisons.
+    fn defined_cost(p: &CodingParams, from: u16, to: u16, za: f32, zb: f32, leftward: bool) -> f32 {
+        let n = u32::from(to) - u32::from(from) - 1;
+        if n == 0 {
+            return if f64::from((zb - za).abs()) > p.jump_mm {
+                p.jump_cost as f32
+            } else {
+                0.0
+            };
+        }
+        let rise = if leftward { zb - za } else { za - zb };
+        if f64::from(rise) >= p.rise_mm {
+            (p.rise_skip_cost + f64::from(n) * p.edge_skip_cost) as f32
+        } else {
+            n as f32 * p.skip_cost as f32
+        }
+    }
+
+    #[test]
+    fn tabulated_transition_costs_are_the_defined_ones_up_to_the_thresholds() {
+        assert_eq!(next_f32(1.0, true), 1.0 + f32::EPSILON);
+        assert_eq!(next_f32(1.0, false), 1.0 - f32::EPSILON / 2.0);
+        assert_eq!(next_f32(-1.0, true), -1.0 + f32::EPSILON / 2.0);
+        assert!(next_f32(0.0, false) < 0.0 && next_f32(0.0, true) > 0.0);
+        assert_eq!(next_f32(f32::MAX, true), f32::INFINITY);
+        let mut rng = crate::test_rng(0x7ab1e);
+        // Thresholds that are not f32 numbers, so that rounding them the wrong way shows.
+        for params in [
+            CodingParams::default(),
+            CodingParams {
+                jump_mm: 0.3,
+                rise_mm: 0.7,
+                rise_skip_cost: 0.33,
+                edge_skip_cost: 0.013,
+                skip_cost: 1.1,
+                ..CodingParams::default()
+            },
+        ] {
+            let tr = Transitions::new(&params);
+            for _ in 0..20_000 {
+                let from = (rng() % 10) as u16;
+                let to = from + 1 + (rng() % 4) as u16;
+                let za = (rng() % 4000) as f32 * 0.01;
+                // Differences right at, just below and just above either threshold, and anywhere.
+                let at = [params.jump_mm as f32, params.rise_mm as f32][(rng() % 2) as usize];
+                let d = match rng() % 4 {
+                    0 => at,
+                    1 => next_f32(at, true),
+                    2 => next_f32(at, false),
+                    _ => (rng() % 400) as f32 * 0.01 - 2.0,
+                };
+                let d = if rng() % 2 == 0 { d } else { -d };
+                // zb chosen so that zb - za is d wherever f32 allows it.
+                let zb = za + d;
+                let leftward = rng() % 3 != 0;
+                let sign = if leftward { 1.0 } else { -1.0 };
+                assert_eq!(
+                    tr.cost(from, to, za, zb, sign),
+                    defined_cost(&params, from, to, za, zb, leftward),
+                    "{from}->{to} za {za} zb {zb} leftward {leftward} ({params:?})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn quick_edge_costs_are_the_general_ones() {
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        let e = &coder.edges;
+        // The paper's set-up is ordered on every row, so the quick way is the one taken.
+        assert!(e.ordered.iter().all(|&o| o));
+        let mut rng = crate::test_rng(0xed9e);
+        for row in (0..480).step_by(7) {
+            let r = row as usize * coder.stripes;
+            // Heights at and around every threshold of the row, and anywhere in the range.
+            let mut zs: Vec<f32> = e.left_at[r..r + coder.stripes]
+                .iter()
+                .chain(&e.right_at[r..r + coder.stripes])
+                .filter(|t| t.is_finite())
+                .flat_map(|&t| [t, next_f32(t, true), next_f32(t, false)])
+                .collect();
+            zs.extend((0..40).map(|_| (rng() % 5000) as f32 * 0.01 - 5.0));
+            zs.extend([0.5f32, next_f32(0.5f32, false), f32::NAN]);
+            for &z in &zs {
+                for label in 0..coder.stripes as u16 {
+                    let general = (
+                        coder.left_skip(row, label, z),
+                        coder.right_skip(row, label, z),
+                    );
+                    let mut fresh = EdgeCursor::START;
+                    let quick = e.costs(&coder.transitions, row, label, z, &mut fresh);
+                    if z.is_nan() {
+                        assert!(quick.is_none());
+                        continue;
+                    }
+                    assert_eq!(quick, Some(general), "row {row} label {label} z {z}");
+                }
+            }
+            // A cursor carried along growing heights, and back to a lower one, counts the same.
+            zs.retain(|z| !z.is_nan());
+            let mut cursor = EdgeCursor::START;
+            for (i, &z) in zs.iter().enumerate() {
+                let label = (i % coder.stripes) as u16;
+                let general = (
+                    coder.left_skip(row, label, z),
+                    coder.right_skip(row, label, z),
+                );
+                let quick = e.costs(&coder.transitions, row, label, z, &mut cursor);
+                assert_eq!(
+                    quick,
+                    Some(general),
+                    "row {row} label {label} z {z} (carried)"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_pruned_row_passes_decide_what_the_full_passes_decide() {
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut pruned =
+            StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        let mut full = pruned.clone();
+        full.window = f32::INFINITY;
+        let mut narrow = pruned.clone();
+        narrow.window = 0.05;
+        let mut rng = crate::test_rng(0x9a55);
+        let mut narrow_differs = false;
+        for case in 0..12 {
+            // Two surfaces (a step somewhere along the row), ghosts between stripes, points lost.
+            let (z0, z1) = ((rng() % 300) as f64 * 0.1, (rng() % 300) as f64 * 0.1);
+            let cut = 100.0 + (rng() % 400) as f64;
+            let mut pts: Vec<StripePoint> = Vec::new();
+            for row in (0..480).step_by(3) {
+                for k in 0..sensor.laser.stripes {
+                    let at = |z| model.column_at_height(k, f64::from(row), z);
+                    let Some(u) = at(z0)
+                        .filter(|&u| u < cut)
+                        .or_else(|| at(z1).filter(|&u| u >= cut))
+                    else {
+                        continue;
+                    };
+                    if (0.0..647.0).contains(&u) && rng() % 10 != 0 {
+                        pts.push(point(row, u));
+                    }
+                }
+                for _ in 0..rng() % 3 {
+                    pts.push(point(row, (rng() % 640) as f64 + 0.5));
+                }
+            }
+            pts.sort_by(|a, b| a.row.cmp(&b.row).then(a.x.total_cmp(&b.x)));
+            let (mut a, mut b, mut c) = (Coding::default(), Coding::default(), Coding::default());
+            pruned.code_into(&pts, &mut a);
+            full.code_into(&pts, &mut b);
+            narrow.code_into(&pts, &mut c);
+            assert_eq!(a, b, "case {case}: z {z0} / {z1} from column {cut}");
+            narrow_differs |= c != b;
+        }
+        // The comparison can tell: a window narrower than the decisions need changes them.
+        assert!(narrow_differs);
     }
 
     #[test]
