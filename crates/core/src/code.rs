@@ -244,6 +244,10 @@ pub struct TemporalParams {
     pub min_votes: usize,
     /// Least share of the track's coded points that must agree.
     pub min_share: f64,
+    /// Fewest agreeing points, in frames before and after, for a track to overrule a label the point's own row
+    /// settled (0: never). A single frame can be misread with confidence as a whole (a sheet's dim tail read as one
+    /// more stripe shifts its row by one index) while the frames around it read the same stripes right.
+    pub overrule_votes: usize,
 }
 
 impl Default for TemporalParams {
@@ -252,6 +256,8 @@ impl Default for TemporalParams {
             link_px: 1.0,
             min_votes: 3,
             min_share: 0.9,
+            // Measured on the demo's 22 frames (wrong stripe indices 4,262 without): 3, 4 and 6 -> 3,030, 10 -> 3,052.
+            overrule_votes: 6,
         }
     }
 }
@@ -262,9 +268,13 @@ impl Default for TemporalParams {
 /// takes its track's label when the points of the track their own rows settled agree on it (at least `min_votes`,
 /// at least `min_share` of them, in frames before and after) and the label is one its own row could nearly take.
 /// So does a point only the segment vote coded (its row could not settle it) whose track reads it otherwise: a
-/// segment that runs the length of a plate can carry one frame's misreading down every row. The row must stay
-/// ordered (labels growing with the column) with all its changes, or only the dropped points that keep it ordered
-/// by themselves are recovered. Returns how many points were recovered or relabelled.
+/// segment that runs the length of a plate can carry one frame's misreading down every row. Even a label the
+/// point's own row settled is overruled when at least [`TemporalParams::overrule_votes`] of the track's settled
+/// points, in frames before and after, agree on another; points no track supports are then dropped where the
+/// overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
+/// conflict nothing is overruled. The row must stay ordered (labels growing with the column) with all its changes,
+/// or only the dropped points that keep it ordered by themselves are recovered. Returns how many points were
+/// recovered, relabelled or dropped.
 ///
 /// Where a stripe falls into a hole, the rows it leaves are read as well one stripe over, and the coder drops the
 /// other stripes' points there; the frames before and after saw the same stripes on the same surface and coded them.
@@ -384,6 +394,7 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
             }
         }
     }
+    let roots: Vec<usize> = (0..total).map(|i| find(&mut parent, i)).collect();
     let mut recovered = 0;
     let mut proposal: Vec<Option<u16>> = Vec::new();
     for (k, f) in frames.iter_mut().enumerate() {
@@ -394,16 +405,39 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
             proposal.clear();
             proposal.extend_from_slice(&f.coding.stripes[s..e]);
             let mut changed = false;
+            let mut overruled = false;
+            // The track's winning label with its votes and whether it codes frames on both sides of this one.
+            let winner = |i: usize| -> Option<(u16, usize, bool)> {
+                let root = roots[offsets[k] + i];
+                let v = votes.get(&root)?;
+                let all: usize = v.iter().map(|x| x.1).sum();
+                let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
+                ((c as f64) >= params.min_share * all as f64).then_some((
+                    w,
+                    c,
+                    first < k && last > k,
+                ))
+            };
             for i in s..e {
                 let current = f.coding.stripes[i];
                 if current.is_some() && f.coding.row_confident.get(i).copied().unwrap_or(false) {
+                    if params.overrule_votes > 0
+                        && let Some((w, c, around)) = winner(i)
+                        && around
+                        && c >= params.overrule_votes
+                        && current != Some(w)
+                    {
+                        proposal[i - s] = Some(w);
+                        changed = true;
+                        overruled = true;
+                    }
                     continue;
                 }
                 let near = f.coding.near.get(i).copied().unwrap_or([NO_LABEL; 3]);
                 if near[0] == NO_LABEL {
                     continue;
                 }
-                let root = find(&mut parent, offsets[k] + i);
+                let root = roots[offsets[k] + i];
                 let Some(v) = votes.get(&root) else { continue };
                 let all: usize = v.iter().map(|x| x.1).sum();
                 let Some(&(w, c, first, last)) = v.iter().max_by_key(|x| x.1) else {
@@ -434,12 +468,52 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                     .zip(labels.iter().flatten().skip(1))
                     .all(|(a, b)| a < b)
             };
+            if overruled && !ordered(&proposal) {
+                // The proposal without the overrules.
+                let plain: Vec<Option<u16>> = (s..e)
+                    .map(|i| {
+                        let settled = f.coding.row_confident.get(i).copied().unwrap_or(false);
+                        match f.coding.stripes[i] {
+                            Some(l) if settled => Some(l),
+                            _ => proposal[i - s],
+                        }
+                    })
+                    .collect();
+                // Points whose label no track supports give way to the overruling tracks: dropped where they
+                // break the row's order. If two supported labels conflict, nothing is overruled.
+                let supported = |i: usize, l: u16| {
+                    winner(i).is_some_and(|(w, c, _)| w == l && c >= params.min_votes)
+                };
+                loop {
+                    let labelled: Vec<usize> =
+                        (0..e - s).filter(|&j| proposal[j].is_some()).collect();
+                    let Some(bad) = labelled
+                        .windows(2)
+                        .find(|w| proposal[w[0]] >= proposal[w[1]])
+                    else {
+                        break;
+                    };
+                    let (a, b) = (bad[0], bad[1]);
+                    if !supported(s + b, proposal[b].unwrap_or(NO_LABEL)) {
+                        proposal[b] = None;
+                    } else if !supported(s + a, proposal[a].unwrap_or(NO_LABEL)) {
+                        proposal[a] = None;
+                    } else {
+                        // Undo the overrules and the drops; the usual rules apply.
+                        proposal.copy_from_slice(&plain);
+                        break;
+                    }
+                }
+            }
             if ordered(&proposal) {
                 for (i, p) in (s..e).zip(&proposal) {
                     if f.coding.stripes[i] != *p {
                         if f.coding.stripes[i].is_none() {
                             f.coding.stats.coded += 1;
                             f.coding.stats.ambiguous = f.coding.stats.ambiguous.saturating_sub(1);
+                        } else if p.is_none() {
+                            f.coding.stats.coded -= 1;
+                            f.coding.stats.ambiguous += 1;
                         }
                         f.coding.stripes[i] = *p;
                         recovered += 1;
@@ -1780,17 +1854,89 @@ mod temporal_tests {
             f[4].coding.near[i] = [i as u16 + 1, i as u16, NO_LABEL];
             f[4].coding.row_confident[i] = false;
         }
-        // Frame 5 the same, but its first point was settled by its row: it keeps its label, and relabelling the
-        // others alone would break the row's order, so none is changed.
+        // Frame 5 the same, but its first point was settled by its row: without overruling it keeps its label,
+        // and relabelling the others alone would break the row's order, so none is changed.
         for i in 0..3 {
             f[5].coding.stripes[i] = Some(i as u16 + 1);
             f[5].coding.near[i] = [i as u16 + 1, i as u16, NO_LABEL];
             f[5].coding.row_confident[i] = i == 0;
         }
-        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 3);
+        let mut overruled = f.clone();
+        let params = TemporalParams {
+            overrule_votes: 0,
+            ..TemporalParams::default()
+        };
+        assert_eq!(reconcile(&mut f, &params), 3);
         assert_eq!(f[4].coding.stripes, vec![Some(0), Some(1), Some(2)]);
         assert_eq!(f[4].coding.stats.coded, 3);
         assert_eq!(f[5].coding.stripes, vec![Some(1), Some(2), Some(3)]);
+        // With overruling (the default), the settled point follows its track too, and the row with it.
+        assert_eq!(reconcile(&mut overruled, &TemporalParams::default()), 6);
+        assert_eq!(overruled[5].coding.stripes, vec![Some(0), Some(1), Some(2)]);
+    }
+
+    /// Frame `k` of [`frames`] misread with confidence: a ghost at column 175 read as stripe 2, so that the
+    /// stripe at 200 reads as 3.
+    fn misread(f: &mut CodedFrame) {
+        f.points.insert(
+            2,
+            StripePoint {
+                x: 175.0 + (f.points[2].x - 200.0),
+                intensity: 40.0,
+                ..f.points[2]
+            },
+        );
+        f.coding.stripes = vec![Some(0), Some(1), Some(2), Some(3)];
+        f.coding.near = vec![
+            [0, NO_LABEL, NO_LABEL],
+            [1, NO_LABEL, NO_LABEL],
+            [2, NO_LABEL, NO_LABEL],
+            [3, NO_LABEL, NO_LABEL],
+        ];
+        f.coding.row_confident = vec![true; 4];
+        f.coding.stats.points = 4;
+        f.coding.stats.coded = 4;
+    }
+
+    #[test]
+    fn tracks_overrule_a_frame_misread_with_confidence() {
+        let mut f = frames(16, 0.2);
+        misread(&mut f[6]);
+        // Overruling off: a confident reading stands.
+        let mut off = f.clone();
+        let params = TemporalParams {
+            overrule_votes: 0,
+            ..TemporalParams::default()
+        };
+        assert_eq!(reconcile(&mut off, &params), 0);
+        assert_eq!(off[6].coding.stripes[3], Some(3));
+        // On: the stripe at 200 takes its track's label, and the ghost, which no track supports and which now
+        // breaks the row's order, is dropped.
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 2);
+        assert_eq!(f[6].coding.stripes, vec![Some(0), Some(1), None, Some(2)]);
+        assert_eq!(f[6].coding.stats.coded, 3);
+        assert_eq!(f[6].coding.stats.ambiguous, 1);
+        // Never extrapolated: the same misreading in the first frame stands.
+        let mut g = frames(16, 0.2);
+        misread(&mut g[0]);
+        assert_eq!(reconcile(&mut g, &TemporalParams::default()), 0);
+        assert_eq!(g[0].coding.stripes[3], Some(3));
+    }
+
+    #[test]
+    fn two_supported_labels_in_conflict_overrule_nothing() {
+        let mut f = frames(16, 0.2);
+        // The ghost's column is lit in every frame and read as 2 there: its track supports it as much as the
+        // stripe's track supports 2 at column 200 (the other frames' rows are not ordered, which the coder would
+        // not give, but only their votes matter here).
+        for fr in f.iter_mut() {
+            misread(fr);
+            fr.coding.stripes[3] = Some(2);
+        }
+        f[6].coding.stripes[3] = Some(3);
+        let before = f[6].coding.stripes.clone();
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        assert_eq!(f[6].coding.stripes, before);
     }
 
     #[test]
