@@ -906,6 +906,19 @@ struct SegmentState {
     taken_row: u32,
 }
 
+/// One step of the row passes: `best` becomes `base + transition()` where that is smaller. The transition is not
+/// computed when `base` alone already reaches `best` (transition costs are never negative, and adding one to `base`
+/// cannot round below it).
+#[inline(always)]
+fn relax(best: &mut f32, base: f32, transition: impl FnOnce() -> f32) {
+    if base < *best {
+        let c = base + transition();
+        if c < *best {
+            *best = c;
+        }
+    }
+}
+
 /// The neighbouring `f32` above (`up`) or below `t` (`f32::next_up` and `next_down` are newer than this crate's
 /// minimum Rust).
 fn next_f32(t: f32, up: bool) -> f32 {
@@ -1395,13 +1408,9 @@ impl StripeCoder {
                     if a.label >= b.label {
                         break;
                     }
-                    let base = a.forward + gap;
-                    if base < best {
-                        let c = base + tr.cost(a.label, b.label, a.z, b.z, b.sign);
-                        if c < best {
-                            best = c;
-                        }
-                    }
+                    relax(&mut best, a.forward + gap, || {
+                        tr.cost(a.label, b.label, a.z, b.z, b.sign)
+                    });
                 }
             }
             items[bi].forward = best;
@@ -1445,13 +1454,9 @@ impl StripeCoder {
                         if b.label <= a.label {
                             continue;
                         }
-                        let base = b.backward + gap;
-                        if base < best {
-                            let c = base + tr.cost(a.label, b.label, a.z, b.z, b.sign);
-                            if c < best {
-                                best = c;
-                            }
-                        }
+                        relax(&mut best, b.backward + gap, || {
+                            tr.cost(a.label, b.label, a.z, b.z, b.sign)
+                        });
                     }
                 }
                 if best < cap {
