@@ -437,20 +437,11 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 if near[0] == NO_LABEL {
                     continue;
                 }
-                let root = roots[offsets[k] + i];
-                let Some(v) = votes.get(&root) else { continue };
-                let all: usize = v.iter().map(|x| x.1).sum();
-                let Some(&(w, c, first, last)) = v.iter().max_by_key(|x| x.1) else {
+                let Some((w, c, around)) = winner(i) else {
                     continue;
                 };
                 // Interpolation only: the track codes the label before and after this frame.
-                if c < params.min_votes
-                    || (c as f64) < params.min_share * all as f64
-                    || !near.contains(&w)
-                    || first >= k
-                    || last <= k
-                    || current == Some(w)
-                {
+                if c < params.min_votes || !near.contains(&w) || !around || current == Some(w) {
                     continue;
                 }
                 proposal[i - s] = Some(w);
