@@ -200,6 +200,30 @@ fn cell_index(
     Some(j as usize * width + i as usize)
 }
 
+/// One sample of a track (a stripe and image row across frames).
+#[derive(Debug, Clone, Copy, Default)]
+struct Sample {
+    frame: usize,
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+/// The polynomial through `nodes` (distinct x) at `x`.
+fn lagrange(nodes: &[(f64, f64)], x: f64) -> f64 {
+    nodes
+        .iter()
+        .enumerate()
+        .map(|(i, &(xi, zi))| {
+            nodes
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .fold(zi, |acc, (_, &(xj, _))| acc * (x - xj) / (xi - xj))
+        })
+        .sum()
+}
+
 /// The grid a scan is accumulated on.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RangeGrid {
@@ -276,9 +300,14 @@ impl RangeGrid {
         self.count[k] += 1;
     }
 
-    /// Adds the profiles of a scan, in frame order.
+    /// Adds the profiles of a scan, in frame order. Each stripe and image row is a track of samples along x (one a
+    /// frame); between two consecutive samples of a track that are close enough (at most [`MAX_FILL_FRAMES`]
+    /// frames, `max_fill_mm` and `max_fill_step_mm` apart) the cells strictly between them are filled by the cubic
+    /// through those two samples and one more on each side (Lagrange, in x), or the quadratic or straight line
+    /// through those of them that are linked the same way. A straight chord cuts the top of a bump: with samples h
+    /// apart it lies `f'' t (h − t) / 2` below a surface of curvature f'' at t from a sample, on average `f'' h²
+    /// / 12` (0.019 mm on a 2 mm bump's top at 0.5 mm a frame); the cubic's error is of fourth order.
     pub fn accumulate(&mut self, profiles: &[Profile]) {
-        // Last sample of each (stripe, row): (frame, x, y, z).
         let rows = profiles
             .iter()
             .flat_map(|p| &p.points)
@@ -291,37 +320,77 @@ impl RangeGrid {
             .map(|p| usize::from(p.stripe) + 1)
             .max()
             .unwrap_or(0);
-        let mut last: Vec<(usize, f64, f64, f64)> =
-            vec![(usize::MAX, 0.0, 0.0, 0.0); rows * stripes];
-        let dx = self.params.spacing_mm[0];
+        // The samples of every track in frame order (a counting sort by track).
+        let key = |p: &ProfilePoint| usize::from(p.stripe) * rows + p.row as usize;
+        let mut start = vec![0usize; rows * stripes + 1];
+        for p in profiles.iter().flat_map(|p| &p.points) {
+            start[key(p) + 1] += 1;
+        }
+        for k in 1..start.len() {
+            start[k] += start[k - 1];
+        }
+        let mut next = start.clone();
+        let mut track = vec![Sample::default(); start[rows * stripes]];
         for prof in profiles {
             for p in &prof.points {
-                let key = usize::from(p.stripe) * rows + p.row as usize;
-                let (frame, x0, y0, z0) = last[key];
-                if frame != usize::MAX
-                    && prof.frame > frame
-                    && prof.frame - frame <= MAX_FILL_FRAMES
-                    && (p.x_mm - x0).abs() <= self.params.max_fill_mm
-                    && (p.z_mm - z0).abs() <= self.params.max_fill_step_mm
-                {
-                    // Cells strictly between the two samples along x.
-                    let (xa, xb) = (x0.min(p.x_mm), x0.max(p.x_mm));
-                    // A cell or two more on each side than needed (truncation, not a library `floor`); the test
-                    // below keeps exactly those strictly between.
-                    let first = ((xa - self.origin[0]) / dx) as i64;
-                    let lastc = ((xb - self.origin[0]) / dx) as i64 + 1;
-                    for c in first..=lastc {
-                        let x = self.origin[0] + c as f64 * dx;
-                        if x <= xa || x >= xb {
-                            continue;
-                        }
-                        let t = (x - x0) / (p.x_mm - x0);
-                        self.add(x, y0 + t * (p.y_mm - y0), z0 + t * (p.z_mm - z0));
-                    }
-                }
-                self.add(p.x_mm, p.y_mm, p.z_mm);
-                last[key] = (prof.frame, p.x_mm, p.y_mm, p.z_mm);
+                let k = key(p);
+                track[next[k]] = Sample {
+                    frame: prof.frame,
+                    x: p.x_mm,
+                    y: p.y_mm,
+                    z: p.z_mm,
+                };
+                next[k] += 1;
             }
+        }
+        for k in 0..rows * stripes {
+            let t = &track[start[k]..start[k + 1]];
+            for (i, s) in t.iter().enumerate() {
+                self.add(s.x, s.y, s.z);
+                if i + 1 < t.len() && self.linked(s, &t[i + 1]) {
+                    let before = (i > 0 && self.linked(&t[i - 1], s)).then(|| &t[i - 1]);
+                    let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
+                    self.fill(s, &t[i + 1], before, after);
+                }
+            }
+        }
+    }
+
+    /// Whether consecutive samples `a` and `b` of a track are joined.
+    fn linked(&self, a: &Sample, b: &Sample) -> bool {
+        b.frame > a.frame
+            && b.frame - a.frame <= MAX_FILL_FRAMES
+            && (b.x - a.x).abs() <= self.params.max_fill_mm
+            && (b.z - a.z).abs() <= self.params.max_fill_step_mm
+    }
+
+    /// Fills the cells strictly between `a` and `b` along x, by the polynomial through them and the linked samples
+    /// around them (x strictly monotonic along the samples used; otherwise fewer of them).
+    fn fill(&mut self, a: &Sample, b: &Sample, before: Option<&Sample>, after: Option<&Sample>) {
+        let dx = self.params.spacing_mm[0];
+        let rising = b.x > a.x;
+        let ordered = |p: &Sample, q: &Sample| if rising { q.x > p.x } else { q.x < p.x };
+        let before = before.filter(|p| ordered(p, a));
+        let after = after.filter(|q| ordered(b, q));
+        let mut nodes = [(0.0, 0.0); 4];
+        let mut n = 0;
+        for s in [before, Some(a), Some(b), after].into_iter().flatten() {
+            nodes[n] = (s.x, s.z);
+            n += 1;
+        }
+        let nodes = &nodes[..n];
+        let (xa, xb) = (a.x.min(b.x), a.x.max(b.x));
+        // A cell or two more on each side than needed (truncation, not a library `floor`); the test below keeps
+        // exactly those strictly between.
+        let first = ((xa - self.origin[0]) / dx) as i64;
+        let last = ((xb - self.origin[0]) / dx) as i64 + 1;
+        for c in first..=last {
+            let x = self.origin[0] + c as f64 * dx;
+            if x <= xa || x >= xb {
+                continue;
+            }
+            let t = (x - a.x) / (b.x - a.x);
+            self.add(x, a.y + t * (b.y - a.y), lagrange(nodes, x));
         }
     }
 
@@ -391,6 +460,34 @@ mod tests {
         assert_eq!(r.at(2.0, 0.0), Some(5.0));
         assert_eq!(r.at(50.0, 0.0), None);
         assert_eq!(r.measured(), 1 + 3 + 1 + 1);
+    }
+
+    #[test]
+    fn a_bumps_top_between_samples_is_not_cut_by_a_chord() {
+        // A cubic sampled every 0.5 mm (one sample a frame, part moving along −x under the stripe): the cells
+        // between samples take the cubic's own heights (a chord would cut the top by up to 0.006 mm); the first
+        // and last intervals, with a neighbour on one side only, the quadratic's.
+        let f = |x: f64| 10.0 + 0.2 - 0.1 * x * x + 0.005 * x * x * x;
+        let profiles: Vec<Profile> = (0..9)
+            .map(|k| {
+                let x = 2.0 - 0.5 * k as f64;
+                prof(k, &[(x, 0.0, f(x))])
+            })
+            .collect();
+        let params = RangeParams {
+            spacing_mm: [0.125, 0.125],
+            ..RangeParams::default()
+        };
+        let mut g = RangeGrid::covering(&profiles, params).expect("grid");
+        g.accumulate(&profiles);
+        let r = g.image();
+        for c in 0..=24 {
+            let x = -1.5 + 0.125 * c as f64;
+            let z = f64::from(r.at(x, 0.0).expect("filled"));
+            assert!((z - f(x)).abs() < 1e-5, "x {x}: {z} against {}", f(x));
+        }
+        let (x, quad) = (1.75, f64::from(r.at(1.75, 0.0).expect("filled")));
+        assert!((quad - f(x)).abs() < 0.002 && (quad - f(x)).abs() > 1e-6);
     }
 
     #[test]
