@@ -42,6 +42,9 @@ pub enum BenchCommand {
         /// List every miss, wrong kind, out-of-tolerance measurement and false defect.
         #[arg(long)]
         verbose: bool,
+        /// Scan without correcting the heights for the sheets' curvature bias (to measure what it changes).
+        #[arg(long)]
+        no_curvature_correction: bool,
     },
     /// The knowledge base on simulated batches: the diagnosis of batches with seeded process faults, and the defect
     /// F1 on a held-out batch before and after learning from a simulated operator's feedback.
@@ -100,7 +103,15 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             defects,
             seed,
             verbose,
-        } => crate::defects::bench_defects(*parts, *clean, *defects, *seed, *verbose),
+            no_curvature_correction,
+        } => crate::defects::bench_defects(
+            *parts,
+            *clean,
+            *defects,
+            *seed,
+            *verbose,
+            !*no_curvature_correction,
+        ),
         BenchCommand::Throughput {
             images,
             method,

@@ -10,7 +10,7 @@ use stripe3d_core::calibrate::Calibration;
 use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
 use stripe3d_core::detect::{Defect, DetectParams, SurfaceRules, inspect};
 use stripe3d_sim::batch::{Match, PartOutcome, match_defects};
-use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scan_scene};
+use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scan_scene_with};
 use stripe3d_sim::{DefectTruth, RenderOptions, Scene};
 
 /// Targets of the defect-detection issue.
@@ -48,12 +48,13 @@ fn scan_and_inspect(
     seed: u64,
     frames: usize,
     grid: [f64; 2],
+    curvature_correction: bool,
 ) -> Result<PartOutcome> {
     let opts = RenderOptions {
         seed,
         ..RenderOptions::default()
     };
-    let scan = scan_scene(sensor, cal, scene, frames, opts, grid)
+    let scan = scan_scene_with(sensor, cal, scene, frames, opts, grid, curvature_correction)
         .with_context(|| format!("scanning {}", scene.name))?;
     // The step of the conveyor `scan_scene` moves the part with.
     let step = sensor.conveyor.clone().unwrap_or_default().step_mm();
@@ -84,6 +85,7 @@ pub fn bench_defects(
     per_part: usize,
     seed: u64,
     verbose: bool,
+    curvature_correction: bool,
 ) -> Result<()> {
     if parts == 0 && clean == 0 {
         bail!("--parts 0 --clean 0: nothing to measure");
@@ -117,7 +119,7 @@ pub fn bench_defects(
             } else {
                 Scene::flat_plate()
             };
-            let r = scan_and_inspect(&sensor, &cal, &scene, s, frames, grid)
+            let r = scan_and_inspect(&sensor, &cal, &scene, s, frames, grid, curvature_correction)
                 .map(|o| (defective, format!("{} (render seed {s})", scene.name), o));
             bar.inc(1);
             r
@@ -169,13 +171,14 @@ pub fn bench_defects(
     let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
     println!(
         "\n{} defective plates ({} defects each, {} in all) and {} clean plates, {} frames each, scanned and inspected in \
-         {seconds:.0} s on {} threads\n",
+         {seconds:.0} s on {} threads (curvature correction {})\n",
         parts,
         per_part,
         matches.len(),
         clean,
         frames,
-        rayon::current_num_threads()
+        rayon::current_num_threads(),
+        if curvature_correction { "on" } else { "off" }
     );
     println!("| figure | measured | target | |");
     println!("|---|---|---|---|");

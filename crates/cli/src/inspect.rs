@@ -87,6 +87,9 @@ pub struct InspectArgs {
     /// Range image cell size in mm when scanning frames [default: one pixel on the belt].
     #[arg(long, value_name = "MM")]
     pub grid_mm: Option<f64>,
+    /// When scanning frames, keep the heights as triangulated (see `stripe3d scan --help`).
+    #[arg(long)]
+    pub no_curvature_correction: bool,
 }
 
 fn is_range_input(frames: &[PathBuf]) -> bool {
@@ -458,6 +461,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             ModelKind::Full,
             range_mm,
             grid,
+            !args.no_curvature_correction,
         )?;
         write_scan(&args.out, &res, &frames, &travel, ModelKind::Full, range_mm)?;
         (

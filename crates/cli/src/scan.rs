@@ -14,8 +14,9 @@ use stripe3d_core::calibrate::{
     Calibration, CalibrationParams, PlaneImage, calibrate, check_camera,
 };
 use stripe3d_core::code::{CodedFrame, CodingParams, CodingStats};
+use stripe3d_core::curvature::CurvatureBias;
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
-use stripe3d_core::scan::{Scanner, profiles_of, range_image};
+use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
@@ -87,6 +88,10 @@ pub struct ScanArgs {
     /// (a sheet's tail on a corner) follow a stripe but not start one. `off` treats every point alike.
     #[arg(long, value_name = "LIMIT|off", default_value_t = stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY, value_parser = crate::extract::parse_asymmetry)]
     pub cut_asymmetry: f64,
+    /// Keep the heights as triangulated: no correction of the curvature bias of the laser sheets' thickness
+    /// (made for the `steger` estimator, from laser.sigma_mm and camera.psf_sigma_px of sensor.toml).
+    #[arg(long)]
+    pub no_curvature_correction: bool,
 }
 
 /// The extraction of a scan with estimator `method`: every other setting at its default.
@@ -302,6 +307,8 @@ pub struct ScanResult {
     pub coding: CodingStats,
     /// Seconds for extraction, coding and triangulation of all frames.
     pub seconds: f64,
+    /// Points whose heights were corrected for the sheets' curvature bias.
+    pub curvature_corrected: usize,
 }
 
 /// Extracts, codes and triangulates frames, and accumulates them; writes nothing.
@@ -315,7 +322,11 @@ pub fn scan_frames(
     model: ModelKind,
     range_mm: (f64, f64),
     grid_mm: [f64; 2],
+    curvature_correction: bool,
 ) -> Result<ScanResult> {
+    let bias = curvature_correction
+        .then(|| CurvatureBias::new(sensor, &cal.full, extract.method))
+        .flatten();
     let (w, h) = (sensor.camera.width, sensor.camera.height);
     let coding_params = CodingParams {
         min_height_mm: range_mm.0,
@@ -357,7 +368,7 @@ pub fn scan_frames(
         .collect();
     bar.finish_and_clear();
     let mut coded = results.into_iter().collect::<Result<Vec<_>>>()?;
-    let (profiles, stats, _) = profiles_of(&mut coded, travel, cal, model);
+    let (mut profiles, stats, _) = profiles_of(&mut coded, travel, cal, model);
     let seconds = started.elapsed().as_secs_f64();
     if profiles.iter().all(|p| p.points.is_empty()) {
         bail!(
@@ -367,11 +378,14 @@ pub fn scan_frames(
             stats.points
         );
     }
+    let (range, curvature_corrected) =
+        range_image_corrected(&mut profiles, grid_mm, bias.as_ref())?;
     Ok(ScanResult {
-        range: range_image(&profiles, grid_mm)?,
+        range,
         profiles,
         coding: stats,
         seconds,
+        curvature_corrected,
     })
 }
 
@@ -420,7 +434,15 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         ..extract_params(&args.method)?
     };
     let res = scan_frames(
-        &sensor, &cal, &frames, &travel, extract, model, range_mm, grid,
+        &sensor,
+        &cal,
+        &frames,
+        &travel,
+        extract,
+        model,
+        range_mm,
+        grid,
+        !args.no_curvature_correction,
     )?;
     write_scan(&args.out, &res, &frames, &travel, model, range_mm)?;
     Ok(res)
@@ -465,6 +487,14 @@ pub fn write_scan(
         s.noise,
         pct(s.noise)
     );
+    if res.curvature_corrected > 0 {
+        println!(
+            "curvature bias of the sheets corrected on {} points ({:.1}%; --no-curvature-correction to keep the \
+             triangulated heights)",
+            res.curvature_corrected,
+            100.0 * res.curvature_corrected as f64 / n.max(1) as f64
+        );
+    }
     let (lo, hi) = res.range.z_range().unwrap_or((0.0, 0.0));
     println!(
         "range image {}x{} cells of {}x{} mm, {} measured, heights {lo:.3} to {hi:.3} mm",

@@ -378,6 +378,7 @@ fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::sc
         method: "steger".into(),
         range: None,
         cut_asymmetry: stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY,
+        no_curvature_correction: false,
     })
 }
 
@@ -444,6 +445,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         threshold_mm: None,
         encoder: None,
         grid_mm: None,
+        no_curvature_correction: false,
     })?;
     let inspection = &outcome.inspection;
     let sensor = read_sensor(&sim_dir.join("sensor.toml"))?;

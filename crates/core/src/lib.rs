@@ -2,7 +2,8 @@
 //!
 //! The algorithms of stripe3d, with no I/O at all: borrowed image views ([`image`]), stripe extraction
 //! ([`extract`]), stripe coding ([`code`]), calibration from plate images ([`calibrate`]), triangulation
-//! ([`triangulate`]), profiles and range grids ([`accumulate`]), frames to profiles to range images ([`scan`]),
+//! ([`triangulate`]), the curvature bias of a sheet of finite thickness ([`curvature`]), profiles and range grids
+//! ([`accumulate`]), frames to profiles to range images ([`scan`]),
 //! reference surfaces, deviation and curvature ([`characterize`]), defects found, named and measured ([`detect`]),
 //! the sensor geometry and the conventions every crate shares ([`sensor`]), and the fuzzy rule bases of the paper
 //! ([`rules`]).
@@ -16,6 +17,7 @@ pub mod accumulate;
 pub mod calibrate;
 pub mod characterize;
 pub mod code;
+pub mod curvature;
 pub mod detect;
 pub mod error;
 pub mod extract;

@@ -9,6 +9,7 @@ use crate::calibrate::Calibration;
 use crate::code::{
     CodedFrame, Coding, CodingParams, CodingStats, StripeCoder, TemporalParams, reconcile,
 };
+use crate::curvature::{CurvatureBias, correct};
 use crate::extract::{ExtractParams, Extraction, Extractor};
 use crate::image::{ImageView, Pixel};
 
@@ -132,4 +133,19 @@ pub fn range_image(profiles: &[Profile], spacing_mm: [f64; 2]) -> Result<RangeIm
     let mut grid = RangeGrid::covering(profiles, params)?;
     grid.accumulate(profiles);
     Ok(grid.image())
+}
+
+/// [`range_image`], with the profiles' heights corrected for the curvature bias of the sheets first when `bias` is
+/// given (see [`crate::curvature`]: the range image is built, its derivatives estimated, every point corrected
+/// where the model holds, and the range image built again); returns the range image and the number of points
+/// corrected.
+pub fn range_image_corrected(
+    profiles: &mut [Profile],
+    spacing_mm: [f64; 2],
+    bias: Option<&CurvatureBias>,
+) -> Result<(RangeImage, usize), CoreError> {
+    match bias {
+        None => Ok((range_image(profiles, spacing_mm)?, 0)),
+        Some(bias) => correct(profiles, bias, |p| range_image(p, spacing_mm)),
+    }
 }

@@ -7,8 +7,9 @@ use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
 use stripe3d_core::calibrate::{Calibration, CalibrationParams, PlaneImage, calibrate};
 use stripe3d_core::code::{CodedFrame, CodingParams};
+use stripe3d_core::curvature::CurvatureBias;
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
-use stripe3d_core::scan::{Scanner, profiles_of, range_image};
+use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected};
 
 /// Plate heights of the simulated calibration, mm: every stripe of the paper's set-up is seen at three of them.
 pub const CALIBRATION_HEIGHTS_MM: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 30.0, 35.0];
@@ -87,7 +88,8 @@ pub struct SimulatedScan {
 }
 
 /// Renders `frames` frames of `scene` (travel from the sensor's conveyor), and scans them with the full model on a
-/// grid of `grid_mm`; coding allows the calibrated heights widened as `stripe3d scan` does by default.
+/// grid of `grid_mm`; coding allows the calibrated heights widened as `stripe3d scan` does by default, and the
+/// heights are corrected for the sheets' curvature bias as `stripe3d scan` does by default.
 pub fn scan_scene(
     sensor: &Sensor,
     cal: &Calibration,
@@ -95,6 +97,19 @@ pub fn scan_scene(
     frames: usize,
     opts: RenderOptions,
     grid_mm: [f64; 2],
+) -> Result<SimulatedScan, SimError> {
+    scan_scene_with(sensor, cal, scene, frames, opts, grid_mm, true)
+}
+
+/// [`scan_scene`], with the curvature-bias correction on or off.
+pub fn scan_scene_with(
+    sensor: &Sensor,
+    cal: &Calibration,
+    scene: &Scene,
+    frames: usize,
+    opts: RenderOptions,
+    grid_mm: [f64; 2],
+    curvature_correction: bool,
 ) -> Result<SimulatedScan, SimError> {
     let simulator = Simulator::new(sensor, scene, opts)?;
     let mut scanner = scanner(cal)?;
@@ -109,8 +124,11 @@ pub fn scan_scene(
         coded.push(c);
         travel.push(t);
     }
-    let (profiles, _, _) = profiles_of(&mut coded, &travel, cal, scanner.model());
-    let range = range_image(&profiles, grid_mm)?;
+    let (mut profiles, _, _) = profiles_of(&mut coded, &travel, cal, scanner.model());
+    let bias = curvature_correction
+        .then(|| CurvatureBias::new(sensor, &cal.full, extract_params().method))
+        .flatten();
+    let (range, _) = range_image_corrected(&mut profiles, grid_mm, bias.as_ref())?;
     Ok(SimulatedScan {
         profiles,
         range,
