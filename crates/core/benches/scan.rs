@@ -1,9 +1,12 @@
 //! Per-frame cost of the stages after extraction: stripe coding, triangulation, accumulation, on a 648x480 frame
 //! of the paper's set-up with 11 stripes on a 10 mm plate (5,280 points).
+//! A whole depth image (22 frames) with and without the curvature-bias correction, on a wavy surface.
 
 use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::{ModelKind, Profile, RangeGrid, RangeParams, profile_into};
 use stripe3d_core::code::{Coding, CodingParams, StripeCoder};
+use stripe3d_core::curvature::CurvatureBias;
+use stripe3d_core::extract::Method;
 use stripe3d_core::extract::StripePoint;
 use stripe3d_core::triangulate::FullModel;
 
@@ -98,5 +101,60 @@ fn accumulate_frame(b: divan::Bencher) {
         let mut g = RangeGrid::covering(&profiles, params.clone()).expect("grid");
         g.accumulate(divan::black_box(&profiles));
         g.image().width
+    });
+}
+
+/// 22 frames 0.5 mm apart (one depth image) of a wavy surface (1 mm amplitude, curvature up to 0.25/mm: every point
+/// is corrected): the range image with and without the curvature-bias correction (`stripe3d scan`'s default).
+fn wavy_depth_image() -> (Sensor, FullModel, Vec<Profile>) {
+    let sensor = Sensor::default();
+    let (model, pts) = frame();
+    let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+    let mut coding = Coding::default();
+    coder.code_into(&pts, &mut coding);
+    let profiles = (0..22)
+        .map(|k| {
+            let mut p = Profile::default();
+            profile_into(
+                k,
+                0.5 * k as f64,
+                &pts,
+                &coding,
+                &model,
+                None,
+                ModelKind::Full,
+                &mut p,
+            );
+            for q in &mut p.points {
+                q.z_mm += (q.x_mm / 2.0).sin() * (q.y_mm / 2.0).sin();
+            }
+            p
+        })
+        .collect();
+    (sensor, model, profiles)
+}
+
+#[divan::bench]
+fn depth_image_uncorrected(b: divan::Bencher) {
+    let (sensor, _, profiles) = wavy_depth_image();
+    let grid = [sensor.camera.belt_pixel_mm(); 2];
+    b.bench_local(|| {
+        stripe3d_core::scan::range_image(divan::black_box(&profiles), grid)
+            .expect("range")
+            .width
+    });
+}
+
+#[divan::bench]
+fn depth_image_curvature_corrected(b: divan::Bencher) {
+    let (sensor, model, profiles) = wavy_depth_image();
+    let grid = [sensor.camera.belt_pixel_mm(); 2];
+    let bias = CurvatureBias::new(&sensor, &model, Method::Steger).expect("a Steger sensor");
+    b.bench_local(|| {
+        let mut p = profiles.clone();
+        let (r, n) =
+            stripe3d_core::scan::range_image_corrected(&mut p, grid, Some(&bias)).expect("range");
+        assert!(n > 50_000, "{n} points corrected");
+        r.width
     });
 }

@@ -4,10 +4,11 @@
 //! conveyor travel since frame 0 subtracted, `DESIGN.md`). [`RangeGrid::accumulate`] resamples a scan's profiles
 //! onto a regular x-y grid: every point lands in its cell, and between the points of one stripe on one image row
 //! in consecutive frames (or with one frame missing between them; the same sheet sweeping the part) the surface is
-//! interpolated linearly when they are
-//! close (at most [`RangeParams::max_fill_mm`] apart along x and [`RangeParams::max_fill_step_mm`] apart in
-//! height), so that a grid finer than the travel per frame has no stripes of empty cells. Cells where nothing was
-//! measured are NaN.
+//! interpolated (by the cubic through them and their neighbours along the track) when they are close (at most
+//! [`RangeParams::max_fill_mm`] apart along x and [`RangeParams::max_fill_step_mm`] apart in height), so that a
+//! grid finer than the travel per frame has no stripes of empty cells. Cells where nothing was measured are NaN.
+//! [`RangeGrid::update`] takes back the tracks of points that moved and adds them again, for corrections that
+//! move some points of a scan (`crate::curvature`).
 
 use crate::CoreError;
 use crate::code::Coding;
@@ -200,8 +201,12 @@ fn cell_index(
     Some(j as usize * width + i as usize)
 }
 
+/// Largest distance (mm) between the polynomial filled between two samples and their chord; beyond it, the chord.
+/// A bump's top between samples 0.5 mm apart lies 0.03 mm above the chord at a curvature of 1/mm.
+const MAX_BOW_MM: f64 = 0.1;
+
 /// One sample of a track (a stripe and image row across frames).
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct Sample {
     frame: usize,
     x: f64,
@@ -209,19 +214,144 @@ struct Sample {
     z: f64,
 }
 
-/// The polynomial through `nodes` (distinct x) at `x`.
-fn lagrange(nodes: &[(f64, f64)], x: f64) -> f64 {
-    nodes
-        .iter()
-        .enumerate()
-        .map(|(i, &(xi, zi))| {
-            nodes
+/// The polynomial through up to four nodes (distinct x) in Newton's form: its divided differences are worked out
+/// once per interval, and each cell costs three multiplications.
+#[derive(Debug, Clone, Copy)]
+struct Newton {
+    x: [f64; 4],
+    c: [f64; 4],
+    n: usize,
+}
+
+impl Newton {
+    fn through(nodes: &[(f64, f64)]) -> Self {
+        let n = nodes.len().min(4);
+        let mut x = [0.0; 4];
+        let mut c = [0.0; 4];
+        for (k, &(xk, zk)) in nodes.iter().take(n).enumerate() {
+            x[k] = xk;
+            c[k] = zk;
+        }
+        // In place: c[k] becomes f[x0..xk].
+        for order in 1..n {
+            for k in (order..n).rev() {
+                c[k] = (c[k] - c[k - 1]) / (x[k] - x[k - order]);
+            }
+        }
+        Self { x, c, n }
+    }
+
+    #[inline]
+    fn at(&self, t: f64) -> f64 {
+        let mut z = 0.0;
+        for k in (0..self.n).rev() {
+            z = z * (t - self.x[k]) + self.c[k];
+        }
+        z
+    }
+}
+
+/// The samples of every track (a stripe and image row) of a scan, in frame order: a counting sort by track.
+#[derive(Debug, Clone, PartialEq)]
+struct Tracks {
+    /// Track k's samples are `samples[start[k]..start[k + 1]]`; track k is stripe `k / rows`, image row `k % rows`.
+    start: Vec<usize>,
+    samples: Vec<Sample>,
+    rows: usize,
+    /// Point j of profile i is sample `slot[first[i] + j]`.
+    first: Vec<usize>,
+    slot: Vec<u32>,
+}
+
+impl Tracks {
+    fn of(profiles: &[Profile]) -> Self {
+        let rows = profiles
+            .iter()
+            .flat_map(|p| &p.points)
+            .map(|p| p.row as usize + 1)
+            .max()
+            .unwrap_or(0);
+        let stripes = profiles
+            .iter()
+            .flat_map(|p| &p.points)
+            .map(|p| usize::from(p.stripe) + 1)
+            .max()
+            .unwrap_or(0);
+        let key = |p: &ProfilePoint| usize::from(p.stripe) * rows + p.row as usize;
+        let mut start = vec![0usize; rows * stripes + 1];
+        for p in profiles.iter().flat_map(|p| &p.points) {
+            start[key(p) + 1] += 1;
+        }
+        for k in 1..start.len() {
+            start[k] += start[k - 1];
+        }
+        let mut next = start.clone();
+        let n = start[rows * stripes];
+        let mut samples = vec![Sample::default(); n];
+        let mut first = Vec::with_capacity(profiles.len() + 1);
+        let mut slot = Vec::with_capacity(n);
+        for prof in profiles {
+            first.push(slot.len());
+            for p in &prof.points {
+                let k = key(p);
+                samples[next[k]] = Sample::of(prof, p);
+                // A scan of more than 4 billion points does not fit in memory before this.
+                slot.push(next[k] as u32);
+                next[k] += 1;
+            }
+        }
+        first.push(slot.len());
+        Self {
+            start,
+            samples,
+            rows,
+            first,
+            slot,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    fn track(&self, k: usize) -> &[Sample] {
+        &self.samples[self.start[k]..self.start[k + 1]]
+    }
+
+    /// Whether `profiles` have as many points each as the profiles these tracks were made of.
+    fn counts_fit(&self, profiles: &[Profile]) -> bool {
+        profiles.len() + 1 == self.first.len()
+            && profiles
                 .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .fold(zi, |acc, (_, &(xj, _))| acc * (x - xj) / (xi - xj))
-        })
-        .sum()
+                .zip(self.first.windows(2))
+                .all(|(p, w)| p.points.len() == w[1] - w[0])
+    }
+
+    /// Track, sample and new value of point `j` of profile `i` of `profiles` (of the same counts), when it is in
+    /// the same track (stripe and row) and frame as these tracks have it.
+    fn find(&self, profiles: &[Profile], i: usize, j: usize) -> Option<(usize, usize, Sample)> {
+        let prof = profiles.get(i)?;
+        let p = prof.points.get(j)?;
+        let s = *self.slot.get(self.first.get(i)? + j)? as usize;
+        let k = usize::from(p.stripe) * self.rows + p.row as usize;
+        let new = Sample::of(prof, p);
+        let fits = (p.row as usize) < self.rows
+            && k < self.len()
+            && (self.start[k]..self.start[k + 1]).contains(&s)
+            && self.samples[s].frame == new.frame;
+        fits.then_some((k, s, new))
+    }
+}
+
+impl Sample {
+    fn of(prof: &Profile, p: &ProfilePoint) -> Self {
+        Self {
+            frame: prof.frame,
+            x: p.x_mm,
+            y: p.y_mm,
+            z: p.z_mm,
+        }
+    }
 }
 
 /// The grid a scan is accumulated on.
@@ -233,6 +363,10 @@ pub struct RangeGrid {
     height: usize,
     sum: Vec<f64>,
     count: Vec<u32>,
+    /// The tracks the grid holds when one scan was accumulated on it (for [`RangeGrid::update`]).
+    held: Option<Tracks>,
+    /// Whether anything was accumulated.
+    used: bool,
 }
 
 impl RangeGrid {
@@ -281,11 +415,13 @@ impl RangeGrid {
             height,
             sum: vec![0.0; width * height],
             count: vec![0; width * height],
+            held: None,
+            used: false,
         })
     }
 
     #[inline]
-    fn add(&mut self, x: f64, y: f64, z: f64) {
+    fn add(&mut self, x: f64, y: f64, z: f64, sign: i32) {
         let Some(k) = cell_index(
             self.origin,
             self.params.spacing_mm,
@@ -296,62 +432,106 @@ impl RangeGrid {
         ) else {
             return;
         };
-        self.sum[k] += z;
-        self.count[k] += 1;
+        self.sum[k] += f64::from(sign) * z;
+        self.count[k] = self.count[k].wrapping_add_signed(sign);
     }
 
     /// Adds the profiles of a scan, in frame order. Each stripe and image row is a track of samples along x (one a
     /// frame); between two consecutive samples of a track that are close enough (at most [`MAX_FILL_FRAMES`]
     /// frames, `max_fill_mm` and `max_fill_step_mm` apart) the cells strictly between them are filled by the cubic
-    /// through those two samples and one more on each side (Lagrange, in x), or the quadratic or straight line
-    /// through those of them that are linked the same way. A straight chord cuts the top of a bump: with samples h
-    /// apart it lies `f'' t (h − t) / 2` below a surface of curvature f'' at t from a sample, on average `f'' h²
-    /// / 12` (0.019 mm on a 2 mm bump's top at 0.5 mm a frame); the cubic's error is of fourth order.
+    /// through those two samples and one more on each side (in x), or the quadratic or straight line through those
+    /// of them that are linked the same way. A straight chord cuts the top of a bump: with samples h apart it lies
+    /// `f'' t (h − t) / 2` below a surface of curvature f'' at t from a sample, on average `f'' h² / 12` (0.019 mm
+    /// on a 2 mm bump's top at 0.5 mm a frame); the cubic's error is of fourth order. A neighbour less than half the
+    /// interval away is left out, and where the curve would leave the chord by more than [`MAX_BOW_MM`] (more than
+    /// a smooth surface bends between samples) the chord is used.
     pub fn accumulate(&mut self, profiles: &[Profile]) {
-        let rows = profiles
-            .iter()
-            .flat_map(|p| &p.points)
-            .map(|p| p.row as usize + 1)
-            .max()
-            .unwrap_or(0);
-        let stripes = profiles
-            .iter()
-            .flat_map(|p| &p.points)
-            .map(|p| usize::from(p.stripe) + 1)
-            .max()
-            .unwrap_or(0);
-        // The samples of every track in frame order (a counting sort by track).
-        let key = |p: &ProfilePoint| usize::from(p.stripe) * rows + p.row as usize;
-        let mut start = vec![0usize; rows * stripes + 1];
-        for p in profiles.iter().flat_map(|p| &p.points) {
-            start[key(p) + 1] += 1;
+        let tracks = Tracks::of(profiles);
+        for k in 0..tracks.len() {
+            self.add_track::<1>(tracks.track(k));
         }
-        for k in 1..start.len() {
-            start[k] += start[k - 1];
+        self.held = None;
+        self.used = true;
+    }
+
+    /// [`RangeGrid::accumulate`], keeping the scan's tracks (the samples again, about a third of the profiles'
+    /// memory) so that [`RangeGrid::update`] can change some of its points at the cost of their tracks alone.
+    pub fn accumulate_to_update(&mut self, profiles: &[Profile]) {
+        let tracks = Tracks::of(profiles);
+        for k in 0..tracks.len() {
+            self.add_track::<1>(tracks.track(k));
         }
-        let mut next = start.clone();
-        let mut track = vec![Sample::default(); start[rows * stripes]];
-        for prof in profiles {
-            for p in &prof.points {
-                let k = key(p);
-                track[next[k]] = Sample {
-                    frame: prof.frame,
-                    x: p.x_mm,
-                    y: p.y_mm,
-                    z: p.z_mm,
-                };
-                next[k] += 1;
+        // A second scan on the same grid: what it holds is no longer one scan's tracks.
+        self.held = (!self.used).then_some(tracks);
+        self.used = true;
+    }
+
+    /// Makes the grid hold `profiles`, the scan accumulated on it by [`RangeGrid::accumulate_to_update`] with the
+    /// points `moved` (profile and point indices) changed in height or place: only their tracks are taken back and
+    /// added again, so the cost follows the points moved, not the scan (the sums may differ from a fresh
+    /// accumulation in their last bits). Points not listed must be as they were accumulated. When `profiles` are
+    /// not the same points (other counts, a moved point in another stripe, row or frame) or the grid does not hold
+    /// one scan's tracks, it is emptied and `profiles` accumulated.
+    pub fn update(
+        &mut self,
+        profiles: &[Profile],
+        moved: impl IntoIterator<Item = (usize, usize)>,
+    ) {
+        let Some(mut held) = self.held.take().filter(|h| h.counts_fit(profiles)) else {
+            return self.refill(profiles);
+        };
+        let mut marked = vec![false; held.len()];
+        let mut changed = Vec::new();
+        let mut news = Vec::new();
+        let mut samples = 0;
+        for (i, j) in moved {
+            let Some((k, s, new)) = held.find(profiles, i, j) else {
+                return self.refill(profiles);
+            };
+            news.push((s, new));
+            if !marked[k] {
+                marked[k] = true;
+                changed.push(k);
+                samples += held.start[k + 1] - held.start[k];
             }
         }
-        for k in 0..rows * stripes {
-            let t = &track[start[k]..start[k + 1]];
-            for (i, s) in t.iter().enumerate() {
-                self.add(s.x, s.y, s.z);
-                if i + 1 < t.len() && self.linked(s, &t[i + 1]) {
-                    let before = (i > 0 && self.linked(&t[i - 1], s)).then(|| &t[i - 1]);
-                    let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
-                    self.fill(s, &t[i + 1], before, after);
-                }
+        // Taking a track back costs what adding it does: past half the samples, adding all afresh is cheaper.
+        let afresh = 2 * samples > held.samples.len();
+        if !afresh {
+            for &k in &changed {
+                self.add_track::<{ -1 }>(held.track(k));
+            }
+        }
+        for (s, new) in news {
+            held.samples[s] = new;
+        }
+        if afresh {
+            self.sum.fill(0.0);
+            self.count.fill(0);
+            changed = (0..held.len()).collect();
+        }
+        for k in changed {
+            self.add_track::<1>(held.track(k));
+        }
+        self.held = Some(held);
+    }
+
+    /// Empties the grid and accumulates `profiles`, keeping their tracks.
+    fn refill(&mut self, profiles: &[Profile]) {
+        self.sum.fill(0.0);
+        self.count.fill(0);
+        self.used = false;
+        self.accumulate_to_update(profiles);
+    }
+
+    /// Adds (`SIGN` 1) or takes back (−1) one track: its samples and the cells filled between them.
+    fn add_track<const SIGN: i32>(&mut self, t: &[Sample]) {
+        for (i, s) in t.iter().enumerate() {
+            self.add(s.x, s.y, s.z, SIGN);
+            if i + 1 < t.len() && self.linked(s, &t[i + 1]) {
+                let before = (i > 0 && self.linked(&t[i - 1], s)).then(|| &t[i - 1]);
+                let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
+                self.fill(s, &t[i + 1], before, after, SIGN);
             }
         }
     }
@@ -366,19 +546,28 @@ impl RangeGrid {
 
     /// Fills the cells strictly between `a` and `b` along x, by the polynomial through them and the linked samples
     /// around them (x strictly monotonic along the samples used; otherwise fewer of them).
-    fn fill(&mut self, a: &Sample, b: &Sample, before: Option<&Sample>, after: Option<&Sample>) {
+    fn fill(
+        &mut self,
+        a: &Sample,
+        b: &Sample,
+        before: Option<&Sample>,
+        after: Option<&Sample>,
+        sign: i32,
+    ) {
         let dx = self.params.spacing_mm[0];
         let rising = b.x > a.x;
         let ordered = |p: &Sample, q: &Sample| if rising { q.x > p.x } else { q.x < p.x };
-        let before = before.filter(|p| ordered(p, a));
-        let after = after.filter(|q| ordered(b, q));
+        // Neighbours much closer to the interval than its own length make a wild polynomial: left out.
+        let span = (b.x - a.x).abs();
+        let before = before.filter(|p| ordered(p, a) && (a.x - p.x).abs() >= 0.5 * span);
+        let after = after.filter(|q| ordered(b, q) && (q.x - b.x).abs() >= 0.5 * span);
         let mut nodes = [(0.0, 0.0); 4];
         let mut n = 0;
         for s in [before, Some(a), Some(b), after].into_iter().flatten() {
             nodes[n] = (s.x, s.z);
             n += 1;
         }
-        let nodes = &nodes[..n];
+        let poly = Newton::through(&nodes[..n]);
         let (xa, xb) = (a.x.min(b.x), a.x.max(b.x));
         // A cell or two more on each side than needed (truncation, not a library `floor`); the test below keeps
         // exactly those strictly between.
@@ -390,7 +579,16 @@ impl RangeGrid {
                 continue;
             }
             let t = (x - a.x) / (b.x - a.x);
-            self.add(x, a.y + t * (b.y - a.y), lagrange(nodes, x));
+            let chord = a.z + t * (b.z - a.z);
+            // The curve may leave the chord by what a smooth surface does between samples, no more (a noisy or
+            // kinked neighbour must not swing it).
+            let z = poly.at(x);
+            let z = if (z - chord).abs() <= MAX_BOW_MM {
+                z
+            } else {
+                chord
+            };
+            self.add(x, a.y + t * (b.y - a.y), z, sign);
         }
     }
 
@@ -488,6 +686,142 @@ mod tests {
         }
         let (x, quad) = (1.75, f64::from(r.at(1.75, 0.0).expect("filled")));
         assert!((quad - f(x)).abs() < 0.002 && (quad - f(x)).abs() > 1e-6);
+    }
+
+    #[test]
+    fn newtons_form_is_the_polynomial_through_the_nodes() {
+        // Against Lagrange's form, written out, for one to four nodes at uneven spacing.
+        let nodes = [(-1.0, 0.3), (0.0, 1.0), (0.5, -0.2), (1.75, 2.0)];
+        for n in 1..=4 {
+            let nodes = &nodes[..n];
+            let lagrange = |t: f64| -> f64 {
+                let mut z = 0.0;
+                for (i, &(xi, zi)) in nodes.iter().enumerate() {
+                    let mut w = zi;
+                    for (j, &(xj, _)) in nodes.iter().enumerate() {
+                        if j != i {
+                            w *= (t - xj) / (xi - xj);
+                        }
+                    }
+                    z += w;
+                }
+                z
+            };
+            let poly = Newton::through(nodes);
+            for k in 0..=40 {
+                let t = -1.5 + 0.09 * k as f64;
+                assert!((poly.at(t) - lagrange(t)).abs() < 1e-9, "{n} nodes at {t}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_close_or_steep_neighbour_leaves_the_chord() {
+        let params = RangeParams {
+            spacing_mm: [0.125, 0.125],
+            max_fill_step_mm: 5.0,
+            ..RangeParams::default()
+        };
+        let fill_at = |samples: &[(f64, f64)], x: f64| -> f64 {
+            let profiles: Vec<Profile> = samples
+                .iter()
+                .enumerate()
+                .map(|(k, &(x, z))| prof(k, &[(x, 0.0, z)]))
+                .collect();
+            let mut g = RangeGrid::covering(&profiles, params.clone()).expect("grid");
+            g.accumulate(&profiles);
+            f64::from(g.image().at(x, 0.0).expect("filled"))
+        };
+        // A neighbour 0.02 mm beyond an interval of 0.5 mm: the quadratic through it would dip 0.06 mm.
+        let z = fill_at(&[(0.0, 1.0), (0.5, 1.0), (0.52, 1.01)], 0.25);
+        assert!((z - 1.0).abs() < 1e-6, "{z}");
+        // A neighbour 2 mm higher: the cubic would dip 0.125 mm below the chord, more than a smooth surface does.
+        let z = fill_at(&[(0.0, 1.0), (0.5, 1.0), (1.0, 1.0), (1.5, 3.0)], 0.75);
+        assert!((z - 1.0).abs() < 1e-6, "{z}");
+        // A neighbour 0.2 mm higher bends it, as a smooth surface would.
+        let z = fill_at(&[(0.0, 1.0), (0.5, 1.0), (1.0, 1.0), (1.5, 1.2)], 0.75);
+        assert!((z - (1.0 - 0.0625 * 0.2)).abs() < 1e-6, "{z}");
+    }
+
+    #[test]
+    fn an_update_gives_what_a_fresh_accumulation_gives() {
+        // Two rows of one stripe over 12 frames; the update moves heights on one row (one of them past the fill's
+        // step limit, which unlinks it from its neighbours) and leaves the other alone, whose track is not redone.
+        let scan = |bump: f64| -> Vec<Profile> {
+            (0..12)
+                .map(|k| {
+                    let x = 3.0 - 0.5 * k as f64;
+                    let mut p = prof(k, &[(x, 0.0, 1.0 + 0.1 * x * x)]);
+                    let mut q = p.points[0];
+                    q.row = 8;
+                    q.y_mm = -0.25;
+                    q.z_mm += if k == 5 { bump } else { 0.01 * bump * k as f64 };
+                    p.points.push(q);
+                    p
+                })
+                .collect()
+        };
+        let params = RangeParams {
+            spacing_mm: [0.125, 0.125],
+            ..RangeParams::default()
+        };
+        let (before, after) = (scan(0.0), scan(0.5));
+        // The points that move: row 8's.
+        let rows8 = (0..12).map(|k| (k, 1));
+        let mut updated = RangeGrid::covering(&before, params.clone()).expect("grid");
+        updated.accumulate_to_update(&before);
+        let unchanged = updated.image();
+        updated.update(&after, rows8.clone());
+        let mut fresh = RangeGrid::covering(&after, params.clone()).expect("grid");
+        fresh.accumulate(&after);
+        let (u, f) = (updated.image(), fresh.image());
+        assert_eq!(u.z.len(), f.z.len());
+        let mut moved = 0;
+        for ((a, b), c) in u.z.iter().zip(&f.z).zip(&unchanged.z) {
+            assert_eq!(a.is_nan(), b.is_nan());
+            if a.is_finite() {
+                assert!((a - b).abs() < 1e-5, "{a} against {b}");
+                moved += usize::from((a - c).abs() > 1e-3);
+            }
+        }
+        assert!(moved > 20, "{moved} cells changed");
+        // Other points (a frame less), or a grid that holds two scans: accumulated afresh.
+        let fresh_of = |profiles: &[Profile]| {
+            let mut g = RangeGrid::covering(&before, params.clone()).expect("grid");
+            g.accumulate(profiles);
+            g.image().z
+        };
+        let same = |a: &[f32], b: &[f32]| {
+            a.len() == b.len()
+                && a.iter()
+                    .zip(b)
+                    .all(|(a, b)| a == b || (a.is_nan() && b.is_nan()))
+        };
+        // Back again: the grid holds what the first update put in it.
+        updated.update(&before, rows8.clone());
+        let (u, b) = (updated.image().z, fresh_of(&before));
+        assert!(
+            u.iter()
+                .zip(&b)
+                .all(|(u, b)| (u - b).abs() < 1e-5 || (u.is_nan() && b.is_nan()))
+        );
+        // A point in another track (image row): accumulated afresh.
+        let mut other = after.clone();
+        other[3].points[1].row = 9;
+        let mut g = RangeGrid::covering(&before, params.clone()).expect("grid");
+        g.accumulate_to_update(&before);
+        g.update(&other, rows8.clone());
+        assert!(same(&g.image().z, &fresh_of(&other)));
+        let fewer = &after[..11];
+        let mut g = RangeGrid::covering(&before, params.clone()).expect("grid");
+        g.accumulate_to_update(&before);
+        g.update(fewer, rows8.clone());
+        assert!(same(&g.image().z, &fresh_of(fewer)));
+        let mut g = RangeGrid::covering(&before, params.clone()).expect("grid");
+        g.accumulate_to_update(&before[..6]);
+        g.accumulate_to_update(&before[6..]);
+        g.update(&after, rows8.clone());
+        assert!(same(&g.image().z, &fresh_of(&after)));
     }
 
     #[test]

@@ -121,18 +121,22 @@ pub fn profiles_of(
 /// in consecutive frames are joined when they are at most 2.5 frame steps apart (so a grid finer than the travel
 /// per frame has no empty columns), and never across a height step.
 pub fn range_image(profiles: &[Profile], spacing_mm: [f64; 2]) -> Result<RangeImage, CoreError> {
+    let mut grid = RangeGrid::covering(profiles, range_params(profiles, spacing_mm))?;
+    grid.accumulate(profiles);
+    Ok(grid.image())
+}
+
+/// The grid [`range_image`] accumulates a scan on.
+fn range_params(profiles: &[Profile], spacing_mm: [f64; 2]) -> RangeParams {
     let step = profiles
         .windows(2)
         .map(|w| (w[1].travel_mm - w[0].travel_mm).abs())
         .fold(0.0f64, f64::max);
-    let params = RangeParams {
+    RangeParams {
         spacing_mm,
         max_fill_mm: (2.5 * step).max(spacing_mm[0] * 1.5),
         ..RangeParams::default()
-    };
-    let mut grid = RangeGrid::covering(profiles, params)?;
-    grid.accumulate(profiles);
-    Ok(grid.image())
+    }
 }
 
 /// [`range_image`], with the profiles' heights corrected for the curvature bias of the sheets first when `bias` is
@@ -146,6 +150,9 @@ pub fn range_image_corrected(
 ) -> Result<(RangeImage, usize), CoreError> {
     match bias {
         None => Ok((range_image(profiles, spacing_mm)?, 0)),
-        Some(bias) => correct(profiles, bias, |p| range_image(p, spacing_mm)),
+        Some(bias) => {
+            let params = range_params(profiles, spacing_mm);
+            correct(profiles, bias, params)
+        }
     }
 }
