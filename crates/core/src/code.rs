@@ -272,9 +272,13 @@ impl Default for TemporalParams {
 /// point's own row settled is overruled when at least [`TemporalParams::overrule_votes`] of the track's settled
 /// points, in frames before and after, agree on another; points no track supports are then dropped where the
 /// overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
-/// conflict nothing is overruled. The row must stay ordered (labels growing with the column) with all its changes,
-/// or only the dropped points that keep it ordered by themselves are recovered. Returns how many points were
-/// recovered, relabelled or dropped.
+/// conflict nothing is overruled. Where the row's order leaves a point one label alone (its labelled neighbours are
+/// that label less and more one), a weaker agreement of its track is enough: its most agreed label, coded by at
+/// least `min_votes` settled points before and after the frame, whatever their share (a track cut short by a bump's
+/// flank, or sharing a frame's misreading): a dropped point takes it if its row could nearly take it, and a point
+/// that would otherwise give way to an overruling track takes it instead of being dropped. The row must stay
+/// ordered (labels growing with the column) with all its changes, or only the dropped points that keep it ordered by
+/// themselves are recovered. Returns how many points were recovered, relabelled or dropped.
 ///
 /// Where a stripe falls into a hole, the rows it leaves are read as well one stripe over, and the coder drops the
 /// other stripes' points there; the frames before and after saw the same stripes on the same surface and coded them.
@@ -418,6 +422,21 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                     first < k && last > k,
                 ))
             };
+            // The track's most agreed label, coded by at least `min_votes` settled points before and after this frame,
+            // whatever its share.
+            let majority = |i: usize| -> Option<u16> {
+                let v = votes.get(&roots[offsets[k] + i])?;
+                let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
+                (c >= params.min_votes && first < k && last > k).then_some(w)
+            };
+            // The one label the row's order leaves point j (between its labelled neighbours in `labels`), when its
+            // track's majority is that label.
+            let sandwiched = |labels: &[Option<u16>], j: usize, i: usize| -> Option<u16> {
+                let lo = *labels[..j].iter().rev().flatten().next()?;
+                let hi = *labels[j + 1..].iter().flatten().next()?;
+                let w = lo.checked_add(1)?;
+                (hi.checked_sub(1) == Some(w) && majority(i) == Some(w)).then_some(w)
+            };
             for i in s..e {
                 let current = f.coding.stripes[i];
                 if current.is_some() && f.coding.row_confident.get(i).copied().unwrap_or(false) {
@@ -446,6 +465,20 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 }
                 proposal[i - s] = Some(w);
                 changed = true;
+            }
+            // A dropped point the row's order leaves one label alone (between its labelled neighbours) takes it when
+            // its track agrees, by a majority too small for the rule above.
+            for j in 0..e - s {
+                let near = f.coding.near.get(s + j).copied().unwrap_or([NO_LABEL; 3]);
+                if f.coding.stripes[s + j].is_none()
+                    && proposal[j].is_none()
+                    && near[0] != NO_LABEL
+                    && let Some(w) = sandwiched(&proposal, j, s + j)
+                    && near.contains(&w)
+                {
+                    proposal[j] = Some(w);
+                    changed = true;
+                }
             }
             if !changed {
                 continue;
@@ -484,11 +517,15 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                     else {
                         break;
                     };
+                    // An unsupported point gives way: it takes the one label the order leaves it if its track
+                    // agrees, or is dropped.
                     let (a, b) = (bad[0], bad[1]);
                     if !supported(s + b, proposal[b].unwrap_or(NO_LABEL)) {
                         proposal[b] = None;
+                        proposal[b] = sandwiched(&proposal, b, s + b);
                     } else if !supported(s + a, proposal[a].unwrap_or(NO_LABEL)) {
                         proposal[a] = None;
+                        proposal[a] = sandwiched(&proposal, a, s + a);
                     } else {
                         // Undo the overrules and the drops; the usual rules apply.
                         proposal.copy_from_slice(&plain);
@@ -1917,6 +1954,38 @@ mod temporal_tests {
         misread(&mut g[0]);
         assert_eq!(reconcile(&mut g, &TemporalParams::default()), 0);
         assert_eq!(g[0].coding.stripes[3], Some(3));
+    }
+
+    /// 16 frames of three stripes whose middle track's settled points read 1 in all but two frames (9 there: a
+    /// share of 0.86, too little for a track to decide alone).
+    fn frames_with_a_weak_middle_track() -> Vec<CodedFrame> {
+        let mut f = frames(16, 0.2);
+        for k in [2, 12] {
+            f[k].coding.stripes[1] = Some(9);
+        }
+        f
+    }
+
+    #[test]
+    fn a_point_the_rows_order_leaves_one_label_takes_its_tracks_majority() {
+        // Dropped between 0 and 2 in frame 6: its track's 13 of 15 votes for 1 do not reach the share, but the row
+        // leaves it 1 alone.
+        let mut f = frames_with_a_weak_middle_track();
+        drop(&mut f[6], 1, [1, 0, 2]);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 1);
+        assert_eq!(f[6].coding.stripes[1], Some(1));
+        // Not where its own row could not take that label.
+        let mut g = frames_with_a_weak_middle_track();
+        drop(&mut g[6], 1, [0, 2, NO_LABEL]);
+        assert_eq!(reconcile(&mut g, &TemporalParams::default()), 0);
+        // A frame misread with confidence from the middle stripe on (a ghost at 175 read as 3, the last stripe as
+        // 4): the last stripe's track overrules it to 2, the ghost is dropped, and the middle stripe, which its
+        // weak track cannot overrule, takes the one label left between 0 and 2 instead of being dropped.
+        let mut h = frames_with_a_weak_middle_track();
+        misread(&mut h[6]);
+        h[6].coding.stripes = vec![Some(0), Some(2), Some(3), Some(4)];
+        reconcile(&mut h, &TemporalParams::default());
+        assert_eq!(h[6].coding.stripes, vec![Some(0), Some(1), None, Some(2)]);
     }
 
     #[test]
