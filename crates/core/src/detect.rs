@@ -1313,6 +1313,19 @@ pub fn detect(
             0.0
         };
         let reference = median(&mut refs);
+        // A gap whose cells mostly hold the surface's own heights is a seam of missing samples (measured strips too
+        // thin for the part's mask between them), not a hole.
+        if bottom_seen && reference - floor < params.seed_mm {
+            out.unmeasured.push(Unmeasured {
+                centroid_mm: s.centroid,
+                area_mm2: area,
+                reason: format!(
+                    "no data in strips, the cells between them at the surface's own height ({:+.3} mm): not a hole",
+                    floor - reference
+                ),
+            });
+            continue;
+        }
         if let Some(c) = out.candidates.last_mut() {
             c.defect = Some(out.defects.len());
         }
@@ -1930,6 +1943,28 @@ mod tests {
         assert!(
             hole.centroid_mm[0].hypot(hole.centroid_mm[1]) < 0.5,
             "{hole:?}"
+        );
+    }
+
+    #[test]
+    fn a_seam_of_missing_samples_at_the_surfaces_height_is_not_a_hole() {
+        // Three columns of no data one cell wide, 0.4 mm apart, over 1.4 mm (a stripe dropped in every other frame):
+        // the measured columns between them are too thin for the part's mask, so the gap holds the surface's own
+        // heights (the rules alone call it a hole, with its bottom seen 0.0002 mm deep).
+        let r = plate(|x, y| {
+            let column = |c: f64| (x - c).abs() < 0.1;
+            if (column(0.0) || column(0.4) || column(0.8)) && y > 0.0 && y < 1.4 {
+                None
+            } else {
+                Some(0.0)
+            }
+        });
+        let d = run(&r);
+        assert!(d.defects.is_empty(), "{:?}", d.defects);
+        assert!(
+            d.unmeasured.iter().any(|u| u.reason.contains("not a hole")),
+            "{:?}",
+            d.unmeasured
         );
     }
 
