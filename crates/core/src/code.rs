@@ -127,8 +127,10 @@ impl Default for CodingParams {
             // stripe), 0.6 costs 1% (97.2%).
             fragment_intensity: 0.6,
             // A point dimmer than 0.15 of its row's median peak is a sheet's tail or a glint, never a stripe the
-            // row should be read by (measured on the demo's 22 frames: wrong stripe indices 3,019 without it ->
-            // 1,644 with it; coded points 98,691 -> 99,890).
+            // row should be read by. Measured on the demo's 22 frames after reconciliation, wrong stripe indices:
+            // 3,019 without it (and without reconcile's unopposed rule), 1,644 with it alone; with both, 3,180 at
+            // 0.1, 1,649 at 0.15, 1,646 at 0.2, and a cliff at 0.25 (13,109), where a row's dim far stripes (a
+            // quarter of its median peak) stop reading it.
             faint_intensity: 0.15,
         }
     }
