@@ -45,6 +45,9 @@ pub enum BenchCommand {
         /// Scan without correcting the heights for the sheets' curvature bias (to measure what it changes).
         #[arg(long)]
         no_curvature_correction: bool,
+        /// Also write every true defect with what was found for it, and every false defect, to this CSV file.
+        #[arg(long, value_name = "FILE")]
+        csv: Option<std::path::PathBuf>,
     },
     /// The knowledge base on simulated batches: the diagnosis of batches with seeded process faults, and the defect
     /// F1 on a held-out batch before and after learning from a simulated operator's feedback.
@@ -104,6 +107,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             seed,
             verbose,
             no_curvature_correction,
+            csv,
         } => crate::defects::bench_defects(
             *parts,
             *clean,
@@ -111,6 +115,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             *seed,
             *verbose,
             !*no_curvature_correction,
+            csv.as_deref(),
         ),
         BenchCommand::Throughput {
             images,

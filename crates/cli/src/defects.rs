@@ -4,6 +4,7 @@
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
+use std::path::Path;
 use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::RangeImage;
 use stripe3d_core::calibrate::Calibration;
@@ -65,6 +66,52 @@ fn scan_and_inspect(
     Ok(out)
 }
 
+/// Columns of `bench defects --csv`: one line per true defect (the found columns empty when it was missed) and one
+/// per false defect (the truth columns empty).
+const CSV_HEADER: &str = "plate,seed,truth_kind,truth_x_mm,truth_y_mm,truth_diameter_mm,truth_area_mm2,\
+truth_depth_mm,found_kind,found_x_mm,found_y_mm,found_area_mm2,found_depth_mm,confidence,centroid_err_mm,\
+area_err_pct,depth_err_mm";
+
+/// The CSV lines of one plate's outcome.
+fn csv_rows(plate: &str, seed: u64, o: &PartOutcome) -> Vec<String> {
+    let truth = |t: &DefectTruth| {
+        format!(
+            "{},{:.4},{:.4},{:.4},{:.4},{:.4}",
+            t.kind, t.x_mm, t.y_mm, t.diameter_mm, t.area_mm2, t.depth_mm
+        )
+    };
+    let found = |f: &Defect| {
+        format!(
+            "{},{:.4},{:.4},{:.4},{:.4},{:.3}",
+            f.kind.name(),
+            f.centroid_mm[0],
+            f.centroid_mm[1],
+            f.area_mm2,
+            f.depth_mm,
+            f.confidence
+        )
+    };
+    let mut rows = Vec::new();
+    for m in &o.matches {
+        let t = &m.truth;
+        let rest = match &m.found {
+            Some(f) => format!(
+                "{},{:.4},{:.2},{:.4}",
+                found(f),
+                (f.centroid_mm[0] - t.x_mm).hypot(f.centroid_mm[1] - t.y_mm),
+                100.0 * (f.area_mm2 - t.area_mm2) / t.area_mm2,
+                f.depth_mm - t.depth_mm
+            ),
+            None => ",,,,,,,,".to_string(),
+        };
+        rows.push(format!("{plate},{seed},{},{rest}", truth(t)));
+    }
+    for f in &o.false_defects {
+        rows.push(format!("{plate},{seed},,,,,,,{},,,", found(f)));
+    }
+    rows
+}
+
 fn pct(a: usize, b: usize) -> f64 {
     100.0 * a as f64 / b.max(1) as f64
 }
@@ -86,9 +133,27 @@ pub fn bench_defects(
     seed: u64,
     verbose: bool,
     curvature_correction: bool,
+    csv: Option<&Path>,
 ) -> Result<()> {
     if parts == 0 && clean == 0 {
         bail!("--parts 0 --clean 0: nothing to measure");
+    }
+    if let Some(path) = csv {
+        // Checked before minutes of scanning, not after.
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        if !dir.is_dir() {
+            bail!(
+                "--csv {}: folder {} does not exist; create it or write the table elsewhere",
+                path.display(),
+                dir.display()
+            );
+        }
+        if path.is_dir() {
+            bail!("--csv {}: is a folder; give a file name", path.display());
+        }
     }
     if per_part == 0 || per_part > 12 {
         bail!(
@@ -111,7 +176,7 @@ pub fn bench_defects(
     );
     bar.set_message(format!("scanning and inspecting ({frames} frames a part)"));
     let started = std::time::Instant::now();
-    let outcomes: Vec<Result<(bool, String, PartOutcome)>> = jobs
+    let outcomes: Vec<Result<(bool, String, u64, PartOutcome)>> = jobs
         .par_iter()
         .map(|&(defective, s)| {
             let scene = if defective {
@@ -120,7 +185,7 @@ pub fn bench_defects(
                 Scene::flat_plate()
             };
             let r = scan_and_inspect(&sensor, &cal, &scene, s, frames, grid, curvature_correction)
-                .map(|o| (defective, format!("{} (render seed {s})", scene.name), o));
+                .map(|o| (defective, scene.name.clone(), s, o));
             bar.inc(1);
             r
         })
@@ -128,8 +193,21 @@ pub fn bench_defects(
     bar.finish_and_clear();
     let seconds = started.elapsed().as_secs_f64();
     let mut all: Vec<(bool, String, PartOutcome)> = Vec::new();
+    let mut rows = Vec::new();
     for o in outcomes {
-        all.push(o?);
+        let (defective, scene, s, outcome) = o?;
+        rows.extend(csv_rows(&scene, s, &outcome));
+        all.push((defective, format!("{scene} (render seed {s})"), outcome));
+    }
+    if let Some(path) = csv {
+        let mut text = String::from(CSV_HEADER);
+        text.push('\n');
+        for r in &rows {
+            text.push_str(r);
+            text.push('\n');
+        }
+        stripe3d_io::files::write_atomic(path, text.as_bytes())
+            .with_context(|| format!("writing --csv {}", path.display()))?;
     }
     // Figures.
     let matches: Vec<&Match> = all

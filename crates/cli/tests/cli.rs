@@ -939,3 +939,57 @@ fn bench_sensor_prints_the_papers_table_beside_ours() {
         .expect("a number");
     assert!(sigma > 0.0 && sigma < 0.022, "{line}");
 }
+
+#[test]
+fn bench_defects_writes_every_defect_to_csv_and_refuses_a_missing_folder() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let missing = dir.path().join("no-such-folder").join("d.csv");
+    let o = stripe3d(&[
+        "bench",
+        "defects",
+        "--parts",
+        "1",
+        "--clean",
+        "0",
+        "--csv",
+        missing.to_str().expect("utf8"),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("does not exist"), "{}", stderr(&o));
+    let csv = dir.path().join("d.csv");
+    let o = stripe3d(&[
+        "bench",
+        "defects",
+        "--parts",
+        "1",
+        "--clean",
+        "1",
+        "--defects",
+        "2",
+        "--csv",
+        csv.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&csv).expect("csv written");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    assert_eq!(header.len(), 17, "{header:?}");
+    assert_eq!(header[..3], ["plate", "seed", "truth_kind"]);
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    // Every true defect has a line (the clean plate none unless something false was found on it).
+    let truths: Vec<&Vec<&str>> = rows.iter().filter(|r| !r[2].is_empty()).collect();
+    assert_eq!(truths.len(), 2, "{rows:?}");
+    for r in &rows {
+        assert_eq!(r.len(), 17, "{r:?}");
+    }
+    for r in truths {
+        assert!(["bump", "dent", "hole"].contains(&r[2]), "{r:?}");
+        let area: f64 = r[6].parse().expect("truth area");
+        assert!(area > 0.0, "{r:?}");
+        if !r[8].is_empty() {
+            let err: f64 = r[15].parse().expect("area error");
+            let found: f64 = r[11].parse().expect("found area");
+            assert!((100.0 * (found - area) / area - err).abs() < 0.1, "{r:?}");
+        }
+    }
+}
