@@ -49,6 +49,25 @@ pub enum BenchCommand {
         #[arg(long, value_name = "FILE")]
         csv: Option<std::path::PathBuf>,
     },
+    /// Stripe coding over a whole simulated scan against the simulator's truth: right and wrong stripe indices
+    /// frame by frame and after temporal reconciliation (Markdown table), and with --verbose where the wrong ones are.
+    Coding {
+        /// Built-in scene name (demo, plate, block, belt) or a scene TOML file [default: demo].
+        #[arg(long, conflicts_with = "defect_plate")]
+        scene: Option<String>,
+        /// Instead of a scene: the plate with 4 random defects `bench defects` renders with this seed.
+        #[arg(long, value_name = "SEED")]
+        defect_plate: Option<u64>,
+        /// Frames [default: enough for every stripe to sweep one stripe pitch, and two more].
+        #[arg(long)]
+        frames: Option<usize>,
+        /// Seed of the renders (the calibration plates use this seed + 10000).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// List the wrong indices frame by frame: which stripe was read as which, on which image rows.
+        #[arg(long)]
+        verbose: bool,
+    },
     /// The knowledge base on simulated batches: the diagnosis of batches with seeded process faults, and the defect
     /// F1 on a held-out batch before and after learning from a simulated operator's feedback.
     Knowledge {
@@ -116,6 +135,19 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             *verbose,
             !*no_curvature_correction,
             csv.as_deref(),
+        ),
+        BenchCommand::Coding {
+            scene,
+            defect_plate,
+            frames,
+            seed,
+            verbose,
+        } => crate::coding_bench::bench_coding(
+            scene.as_deref(),
+            *defect_plate,
+            *frames,
+            *seed,
+            *verbose,
         ),
         BenchCommand::Throughput {
             images,

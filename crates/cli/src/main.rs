@@ -1,6 +1,7 @@
 //! The `stripe3d` command: thin wiring of the library crates. See `stripe3d --help`.
 
 mod bench;
+mod coding_bench;
 mod defects;
 mod extract;
 mod fuzzy;

@@ -60,7 +60,7 @@ pub struct SimulationSummary {
     pub seconds: f64,
 }
 
-fn load_scene(name: &str) -> Result<Scene> {
+pub(crate) fn load_scene(name: &str) -> Result<Scene> {
     if let Some(s) = Scene::builtin(name) {
         return Ok(s);
     }

@@ -993,3 +993,36 @@ fn bench_defects_writes_every_defect_to_csv_and_refuses_a_missing_folder() {
         }
     }
 }
+
+#[test]
+fn bench_coding_scores_a_scan_against_the_truth_and_refuses_bad_arguments() {
+    let o = stripe3d(&["bench", "coding", "--scene", "block", "--frames", "3"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let row = out
+        .lines()
+        .find(|l| l.starts_with("| after temporal reconciliation |"))
+        .expect("the reconciled row");
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    // | stage | points | coded | right | wrong | off the truth | right of matched | target |
+    let points: usize = cells[2].parse().expect("points");
+    let right: usize = cells[4].parse().expect("right");
+    assert!(points > 1000 && right > points / 2, "{row}");
+    // The block hides four stripes in its rows and is coded without a wrong index (coding.rs measures the same).
+    assert_eq!(cells[5], "0", "{row}");
+    assert_eq!(cells[8], "met", "{row}");
+    for (args, says) in [
+        (vec!["--scene", "no-such-scene"], "no built-in scene"),
+        (vec!["--frames", "0"], "give 1 to"),
+        (
+            vec!["--scene", "demo", "--defect-plate", "3"],
+            "cannot be used with",
+        ),
+    ] {
+        let mut all = vec!["bench", "coding"];
+        all.extend(args);
+        let o = stripe3d(&all);
+        assert!(!o.status.success(), "{all:?}");
+        assert!(stderr(&o).contains(says), "{all:?}: {}", stderr(&o));
+    }
+}
