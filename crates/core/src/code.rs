@@ -6,7 +6,9 @@
 //!
 //! 1. **Geometry, per scan line.** The calibrated model gives, for every row, the band of columns each stripe can
 //!    occupy over the measuring range, and the height each candidate label implies. Labels along a row increase
-//!    with the column (the ordering constraint). A labelling of the row is scored by the stripes it declares
+//!    with the column (the ordering constraint), except that one sheet may be seen twice where an edge runs along
+//!    the row (its upper part on the upper surface, the rest beyond the edge lower down; see `Transitions::cost`):
+//!    a repeated label, the second point lower by more than a jump, costs what a false point costs. A labelling of the row is scored by the stripes it declares
 //!    missing and the points it declares false: a stripe may vanish where the surface rises away from the
 //!    projector (the sheet hits a wall the camera cannot see, or a belt spot hidden from the camera), or where it
 //!    leaves the image at the height of its neighbours, almost for free; anywhere else a missing stripe costs
@@ -998,6 +1000,8 @@ struct Transitions {
     /// Smallest `f32` at least [`CodingParams::rise_mm`]: `r >= rise_at` exactly when `f64::from(r) >= rise_mm`.
     rise_at: f32,
     jump_cost: f32,
+    /// One sheet seen twice in a row ([`CodingParams::outlier_cost`]).
+    split_cost: f32,
     /// Per number of stripes missing between the two points: the cost without a rise, and with one.
     skip: [f32; MAX_STRIPES],
     rise_skip: [f32; MAX_STRIPES],
@@ -1027,6 +1031,7 @@ impl Transitions {
             jump_at: below(params.jump_mm),
             rise_at: above(params.rise_mm),
             jump_cost: params.jump_cost as f32,
+            split_cost: params.outlier_cost as f32,
             skip: std::array::from_fn(|n| n as f32 * skip_cost),
             rise_skip: std::array::from_fn(|n| {
                 (params.rise_skip_cost + n as f64 * params.edge_skip_cost) as f32
@@ -1038,11 +1043,24 @@ impl Transitions {
     /// stripes `from + 1 .. to` missing (one wall hides all it hides when the surface rises away from the
     /// projector: one event, plus a little per stripe), or the surface jumping between neighbouring stripes.
     /// `rise_sign` is +1 when stripe `to` moves towards smaller columns as the height grows, −1 otherwise.
+    ///
+    /// `from == to` is one sheet seen twice: where an edge runs along the row, the sheet's upper part lies on the
+    /// upper surface and the rest beyond the edge on the lower one, two points of one stripe in one row (a plate's
+    /// top and the belt past its side; the two levels of a step). The second must lie lower by more than a jump;
+    /// it costs what a false point costs, so it wins only where the row runs on from it on the lower surface
+    /// without the jump the false point would leave (a stray point on a smooth surface stays cheaper as false).
     #[inline(always)]
     fn cost(&self, from: u16, to: u16, za: f32, zb: f32, rise_sign: f32) -> f32 {
+        let d = zb - za;
+        if from == to {
+            return if -rise_sign * d > self.jump_at {
+                self.split_cost
+            } else {
+                f32::INFINITY
+            };
+        }
         // Fewer than MAX_STRIPES (a power of two) stripes: the mask only spares the bounds check.
         let n = usize::from(to - from - 1) & (MAX_STRIPES - 1);
-        let d = zb - za;
         if n == 0 {
             if d.abs() > self.jump_at {
                 self.jump_cost
@@ -1461,7 +1479,7 @@ impl StripeCoder {
             for ja in (jb.saturating_sub(run + 1)..jb).rev() {
                 let gap = q * (jb - ja - 1) as f32;
                 for a in &items[row_start[ja]..row_start[ja + 1]] {
-                    if a.label >= b.label {
+                    if a.label > b.label {
                         break;
                     }
                     relax(&mut best, a.forward + gap, || {
@@ -1507,7 +1525,7 @@ impl StripeCoder {
                     let gap = q * (jb - ja - 1) as f32;
                     let (s, e) = self.back_range[jb];
                     for b in &self.back[s..e] {
-                        if b.label <= a.label {
+                        if b.label < a.label {
                             continue;
                         }
                         relax(&mut best, b.backward + gap, || {
@@ -1582,7 +1600,7 @@ impl StripeCoder {
                     let base = a.forward + gap;
                     for &bi in after {
                         let b = &items[bi as usize];
-                        if b.label <= a.label || base + b.backward >= best {
+                        if b.label < a.label || base + b.backward >= best {
                             continue;
                         }
                         let c = base + tr.cost(a.label, b.label, a.z, b.z, b.sign) + b.backward;
@@ -1739,6 +1757,23 @@ impl StripeCoder {
         }
     }
 
+    /// Whether points `a` and `b` (left to right in `row`) are one sheet `label` seen twice by their row's own
+    /// reading: both read as `label`, the right one lower by more than a jump.
+    fn split(&self, row: u32, a: usize, b: usize, label: u16) -> bool {
+        let (sa, sb) = (&self.state[a], &self.state[b]);
+        let sign = if self.band_of(row, usize::from(label)).leftward {
+            1.0
+        } else {
+            -1.0
+        };
+        sa.best == label
+            && sb.best == label
+            && self
+                .transitions
+                .cost(label, label, sa.z, sb.z, sign)
+                .is_finite()
+    }
+
     /// Pass 3: segment votes, per-point decisions and the ordering check.
     fn decide(&mut self, points: &[StripePoint], out: &mut Coding) {
         let share = self.params.min_vote_share;
@@ -1802,7 +1837,8 @@ impl StripeCoder {
             out.near[idx] = near;
             out.row_confident[idx] = st.confident && st.best != NO_LABEL;
         }
-        // Ordering: labels must grow with the column along every row; drop both sides of a violation.
+        // Ordering: labels must grow with the column along every row (or repeat where the row's reading saw one
+        // sheet twice, see `Transitions::cost`); drop both sides of a violation.
         let mut i = 0;
         while i < self.order.len() {
             let row = points[self.order[i] as usize].row;
@@ -1815,7 +1851,7 @@ impl StripeCoder {
                 let idx = idx as usize;
                 if let Some(l) = out.stripes[idx] {
                     if let Some((prev, pl)) = last
-                        && pl >= l
+                        && (pl > l || (pl == l && !self.split(row, prev, idx, l)))
                     {
                         out.stripes[prev] = None;
                         out.stripes[idx] = None;
@@ -2203,6 +2239,54 @@ mod tests {
             "{:?}",
             out.stats
         );
+    }
+
+    #[test]
+    fn one_sheet_seen_on_both_sides_of_an_edge_is_one_stripe_twice() {
+        // A plate 5 mm high under stripes 2-5 whose right edge runs along the rows between where sheet 5 meets its
+        // top and where it meets the belt: sheet 5 lights both, so every row holds stripe 5 twice, then 6-10 on
+        // the belt (stripes 0 and 1 on the belt left of the plate). Read one stripe over, the plate would lie below
+        // the belt: the only readings are the right one and the one that calls the second point false.
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut pts = Vec::new();
+        for (p, k) in flat(&model, &sensor, 0.0, 100..480) {
+            if k <= 1 || k >= 5 {
+                pts.push((p, k));
+            }
+        }
+        for (p, k) in flat(&model, &sensor, 5.0, 100..480) {
+            if (2..=5).contains(&k) {
+                pts.push((p, k));
+            }
+        }
+        pts.sort_by(|a, b| a.0.row.cmp(&b.0.row).then(a.0.x.total_cmp(&b.0.x)));
+        let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+        let (out, wrong) = code(&mut coder, &pts);
+        assert_eq!(wrong, 0, "{:?}", out.stats);
+        let fives = pts
+            .iter()
+            .zip(&out.stripes)
+            .filter(|((_, k), l)| *k == 5 && **l == Some(5))
+            .count();
+        assert_eq!(fives, 2 * 380, "both points of sheet 5 coded in every row");
+        assert_eq!(out.stats.coded, pts.len(), "{:?}", out.stats);
+        // A stray point halfway between two stripes of a flat belt is not a split: it stays false.
+        let mut stray = flat(&model, &sensor, 0.0, 100..480);
+        let extra: Vec<(StripePoint, u16)> = stray
+            .windows(2)
+            .filter(|w| w[0].0.row == w[1].0.row && w[0].1 == 4)
+            .map(|w| (point(w[0].0.row, 0.5 * (w[0].0.x + w[1].0.x)), NO_LABEL))
+            .collect();
+        stray.extend(extra);
+        stray.sort_by(|a, b| a.0.row.cmp(&b.0.row).then(a.0.x.total_cmp(&b.0.x)));
+        let (out, wrong) = code(&mut coder, &stray);
+        assert_eq!(wrong, 0, "{:?}", out.stats);
+        for ((p, k), l) in stray.iter().zip(&out.stripes) {
+            if *k == NO_LABEL {
+                assert_eq!(*l, None, "the stray point stays false: {p:?}");
+            }
+        }
     }
 
     /// The demo's far edge: a plate 10 mm high (stripes 2-9) whose last stripe's sheet passes over the edge to the
