@@ -397,20 +397,66 @@ impl Registration {
 
     /// The golden heights (plus the height offset) at every cell of `scan`; NaN where the golden scan shows no
     /// part (outside it, in its holes) or has no data.
+    ///
+    /// On a wall of the golden part — where its heights within one golden cell of the point span more than
+    /// [`GOLDEN_WALL_MM`] — the reference is the scan's own height wherever that lies within the span: there a
+    /// cell's height depends on exactly where the wall is, which neither scan pins down to a cell (each codes a
+    /// slightly different piece of a boss's rim; a cell compared across them is off by millimetres), so only a
+    /// height outside everything the golden part shows around the point is a deviation.
     pub fn heights(&self, scan: &RangeImage, golden: &RangeImage, belt_level_mm: f64) -> Vec<f32> {
         let mut out = Vec::with_capacity(scan.z.len());
         for j in 0..scan.height {
             for i in 0..scan.width {
                 let (x, y) = cell_xy(scan, i, j);
                 let (gx, gy) = self.map(x, y);
-                out.push(match bilinear_above(golden, gx, gy, belt_level_mm) {
-                    Some(z) => (z + self.dz_mm) as f32,
-                    None => f32::NAN,
+                let reference = match bilinear_above(golden, gx, gy, belt_level_mm) {
+                    Some(z) => z + self.dz_mm,
+                    None => {
+                        out.push(f32::NAN);
+                        continue;
+                    }
+                };
+                let z = f64::from(scan.z[j * scan.width + i]);
+                let band = local_span(golden, gx, gy, belt_level_mm)
+                    .filter(|(lo, hi)| hi - lo > GOLDEN_WALL_MM && z.is_finite());
+                out.push(match band {
+                    Some((lo, hi)) => z.clamp(lo + self.dz_mm, hi + self.dz_mm) as f32,
+                    None => reference as f32,
                 });
             }
         }
         out
     }
+}
+
+/// Least height span of a golden scan around a point that makes it a wall there ([`Registration::heights`]), mm. A
+/// dent or bump the inspection measures rises at most a few tenths of a millimetre over the 0.4-0.5 mm the span is
+/// taken over; a boss's or a step's side spans millimetres.
+pub const GOLDEN_WALL_MM: f64 = 1.0;
+
+/// The least and greatest part height (above `floor_mm`) of the 4 x 4 cells around (x, y) — the bilinear
+/// neighbourhood and one cell beyond on each side; `None` when none holds one.
+fn local_span(range: &RangeImage, x: f64, y: f64, floor_mm: f64) -> Option<(f64, f64)> {
+    let fi = ((x - range.origin_mm[0]) / range.spacing_mm[0]).floor();
+    let fj = ((range.origin_mm[1] - y) / range.spacing_mm[1]).floor();
+    if !(fi.is_finite() && fj.is_finite()) {
+        return None;
+    }
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for dj in -1..=2 {
+        for di in -1..=2 {
+            let (i, j) = (fi + f64::from(di), fj + f64::from(dj));
+            if i < 0.0 || j < 0.0 || i >= range.width as f64 || j >= range.height as f64 {
+                continue;
+            }
+            let v = f64::from(range.z[j as usize * range.width + i as usize]);
+            if v > floor_mm {
+                lo = lo.min(v);
+                hi = hi.max(v);
+            }
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
 }
 
 /// Bilinear height at (x, y): `None` unless all four surrounding cells hold a height.
@@ -1032,6 +1078,57 @@ mod tests {
             }
         }
         r
+    }
+
+    #[test]
+    fn a_golden_wall_is_compared_within_its_span_and_flat_ground_as_it_is() {
+        // A boss 8 mm high on a 10 mm plate; the scan sees it 0.1 mm (half a cell) further along x, and has a dent
+        // 0.4 mm deep on the plate away from it.
+        let boss = |x: f64, y: f64| if x.hypot(y) < 5.0 { 18.0 } else { 10.0 };
+        let golden = image(100, 100, boss);
+        let scan = image(100, 100, |x, y| {
+            let d = (x - 6.5).hypot(y + 6.5);
+            boss(x - 0.1, y) - if d < 1.5 { 0.4 * (1.0 - d / 1.5) } else { 0.0 }
+        });
+        let reg = Registration {
+            dx_mm: 0.0,
+            dy_mm: 0.0,
+            theta_rad: 0.0,
+            dz_mm: 0.0,
+            centre_mm: [0.0, 0.0],
+            mean_difference_mm: 0.0,
+            overlap: 1.0,
+        };
+        let reference = reg.heights(&scan, &golden, 0.5);
+        let (mut plain_max, mut wall_max) = (0.0f64, 0.0f64);
+        for j in 0..scan.height {
+            for i in 0..scan.width {
+                let (x, y) = cell_xy(&scan, i, j);
+                let k = j * scan.width + i;
+                let z = f64::from(scan.z[k]);
+                if (x.hypot(y) - 5.0).abs() < 0.5 {
+                    let plain = bilinear_above(&golden, x, y, 0.5).expect("golden");
+                    plain_max = plain_max.max((z - plain).abs());
+                    wall_max = wall_max.max((z - f64::from(reference[k])).abs());
+                }
+            }
+        }
+        assert!(
+            plain_max > 5.0,
+            "cell by cell the rim is millimetres off: {plain_max}"
+        );
+        assert!(
+            wall_max < 1e-6,
+            "within the wall's span it is not: {wall_max}"
+        );
+        // The dent keeps its depth.
+        let (i, j) = (
+            ((6.5 - scan.origin_mm[0]) / 0.2).round() as usize,
+            ((scan.origin_mm[1] + 6.5) / 0.2).round() as usize,
+        );
+        let k = j * scan.width + i;
+        let dev = f64::from(scan.z[k] - reference[k]);
+        assert!((dev + 0.4).abs() < 0.06, "{dev}");
     }
 
     #[test]
