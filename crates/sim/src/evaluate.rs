@@ -1,11 +1,16 @@
-//! Measuring stripe extraction against the simulator's exact ground truth, and the Cramér-Rao bound.
+//! Measuring stripe extraction and stripe coding against the simulator's exact ground truth, and the Cramér-Rao
+//! bound.
 //!
 //! A truth point is *found* when an extracted point lies on the same scan line within [`MATCH_RADIUS_PX`]; its
 //! error is the signed difference of the nearest such point. An extracted point with no truth point within the
-//! radius on its line is *false*.
+//! radius on its line is *false*. A coded point is checked against the stripe of the truth point of its scan line
+//! nearest to it within the same radius ([`CodingScore`]).
 
 use crate::render::TruthPoint;
 use serde::Serialize;
+use std::collections::BTreeMap;
+use stripe3d_core::code::CodedFrame;
+use stripe3d_core::extract::StripePoint;
 
 /// Largest distance (pixels) at which an extracted point counts as finding a truth point.
 pub const MATCH_RADIUS_PX: f64 = 0.5;
@@ -149,5 +154,159 @@ mod tests {
             (bound - closed).abs() / closed < 0.01,
             "{bound} vs {closed}"
         );
+    }
+}
+
+/// Stripe coding of one or more frames against the truth.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct CodingTally {
+    /// Extracted points.
+    pub points: usize,
+    /// Of those, given a stripe index.
+    pub coded: usize,
+    /// Coded and matched to a truth point with that stripe.
+    pub right: usize,
+    /// Coded and matched to a truth point of another stripe.
+    pub wrong: usize,
+    /// Coded with no truth point within [`MATCH_RADIUS_PX`] (a sheet's tail, a ghost, a centre an edge pulls aside).
+    pub off_truth: usize,
+}
+
+impl CodingTally {
+    /// Share of the matched coded points that are right.
+    pub fn right_share(&self) -> f64 {
+        self.right as f64 / (self.right + self.wrong).max(1) as f64
+    }
+
+    /// Adds another tally.
+    pub fn add(&mut self, b: &CodingTally) {
+        self.points += b.points;
+        self.coded += b.coded;
+        self.right += b.right;
+        self.wrong += b.wrong;
+        self.off_truth += b.off_truth;
+    }
+}
+
+/// One frame's truth points by image row: (column, stripe), for matching coded points.
+#[derive(Debug, Clone, Default)]
+pub struct TruthRows(Vec<Vec<(f64, u32)>>);
+
+impl TruthRows {
+    /// Indexes a frame's truth points by row.
+    pub fn new(truth: &[TruthPoint]) -> Self {
+        let rows = truth.iter().map(|t| t.row as usize + 1).max().unwrap_or(0);
+        let mut by_row = vec![Vec::new(); rows];
+        for t in truth {
+            by_row[t.row as usize].push((t.u, t.stripe));
+        }
+        Self(by_row)
+    }
+
+    /// The stripe of the truth point of `p`'s row nearest to it within [`MATCH_RADIUS_PX`].
+    pub fn stripe_of(&self, p: &StripePoint) -> Option<u32> {
+        self.0
+            .get(p.row as usize)?
+            .iter()
+            .map(|&(u, s)| ((u - p.x).abs(), s))
+            .filter(|&(d, _)| d <= MATCH_RADIUS_PX)
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, s)| s)
+    }
+}
+
+/// Where one kind of wrong index lies: points, first and last image row, leftmost and rightmost column.
+pub type Spread = (usize, [u32; 2], [f64; 2]);
+
+/// One coded frame against its truth.
+#[derive(Debug, Default, Clone)]
+pub struct CodingScore {
+    /// The counts.
+    pub tally: CodingTally,
+    /// Wrong indices by (true stripe, label given).
+    pub confusions: BTreeMap<(u32, u16), Spread>,
+}
+
+/// Scores one coded frame against its truth points.
+pub fn score_coding(coded: &CodedFrame, truth: &TruthRows) -> CodingScore {
+    let mut s = CodingScore::default();
+    s.tally.points = coded.points.len();
+    for (p, l) in coded.points.iter().zip(&coded.coding.stripes) {
+        let Some(l) = *l else { continue };
+        s.tally.coded += 1;
+        match truth.stripe_of(p) {
+            Some(t) if t == u32::from(l) => s.tally.right += 1,
+            Some(t) => {
+                s.tally.wrong += 1;
+                let e = s
+                    .confusions
+                    .entry((t, l))
+                    .or_insert((0, [p.row, p.row], [p.x, p.x]));
+                e.0 += 1;
+                e.1 = [e.1[0].min(p.row), e.1[1].max(p.row)];
+                e.2 = [e.2[0].min(p.x), e.2[1].max(p.x)];
+            }
+            None => s.tally.off_truth += 1,
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod coding_tests {
+    use super::*;
+    use stripe3d_core::code::Coding;
+
+    fn point(row: u32, x: f64) -> StripePoint {
+        StripePoint {
+            row,
+            x,
+            intensity: 100.0,
+            width: 6.0,
+            score: 0.5,
+            cut: false,
+        }
+    }
+
+    #[test]
+    fn coded_points_are_scored_against_the_nearest_truth_point_of_their_row() {
+        let truth = TruthRows(vec![vec![(10.0, 0), (20.0, 1)], vec![(10.2, 0), (10.6, 1)]]);
+        let coded = CodedFrame {
+            points: vec![
+                point(0, 10.3),
+                point(0, 19.6),
+                point(0, 30.0),
+                point(1, 10.45),
+                point(1, 10.0),
+                point(5, 1.0),
+            ],
+            coding: Coding {
+                stripes: vec![Some(0), Some(2), Some(3), Some(1), None, Some(0)],
+                ..Coding::default()
+            },
+        };
+        let s = score_coding(&coded, &truth);
+        assert_eq!(
+            s.tally,
+            CodingTally {
+                points: 6,
+                coded: 5,
+                right: 2,
+                wrong: 1,
+                off_truth: 2,
+            }
+        );
+        assert_eq!(s.confusions.get(&(1, 2)), Some(&(1, [0, 0], [19.6, 19.6])));
+        assert!((s.tally.right_share() - 2.0 / 3.0).abs() < 1e-12);
+        let rows = TruthRows::new(&[TruthPoint {
+            row: 3,
+            stripe: 4,
+            u: 7.0,
+            world: [0.0; 3],
+            part: [0.0; 3],
+        }]);
+        assert_eq!(rows.stripe_of(&point(3, 7.4)), Some(4));
+        assert_eq!(rows.stripe_of(&point(3, 7.6)), None);
+        assert_eq!(rows.stripe_of(&point(2, 7.0)), None);
     }
 }

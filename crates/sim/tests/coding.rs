@@ -2,10 +2,11 @@
 //! of a truth point of its row is checked against that point's stripe.
 
 use stripe3d_core::code::{Coding, CodingParams, CodingStats, StripeCoder};
-use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method, StripePoint};
+use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
 use stripe3d_core::triangulate::FullModel;
 use stripe3d_core::{Image, Sensor};
-use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator, TruthPoint};
+use stripe3d_sim::evaluate::TruthRows;
+use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
 
 /// What coding did on a set of frames, against the truth.
 #[derive(Debug, Default)]
@@ -52,14 +53,6 @@ fn eight_bit(f: &Frame) -> Image<u8> {
     Image::from_vec(f.image.width(), f.image.height(), data).expect("image")
 }
 
-/// The truth point of `p`'s row nearest to it within 0.5 px.
-fn truth_of<'a>(f: &'a Frame, p: &StripePoint) -> Option<&'a TruthPoint> {
-    f.truth
-        .iter()
-        .filter(|q| q.row == p.row && (q.u - p.x).abs() <= 0.5)
-        .min_by(|a, b| (a.u - p.x).abs().total_cmp(&(b.u - p.x).abs()))
-}
-
 fn tally(sensor: &Sensor, frames: &[Frame], params: CodingParams) -> Tally {
     let (mut coder, mut ex) = coder_and_extractor(sensor, params);
     let mut extraction = Extraction::default();
@@ -70,13 +63,14 @@ fn tally(sensor: &Sensor, frames: &[Frame], params: CodingParams) -> Tally {
         coder.code_into(&extraction.points, &mut coding);
         t.stats.add(&coding.stats);
         t.truth += f.truth.len();
+        let rows = TruthRows::new(&f.truth);
         for (p, s) in extraction.points.iter().zip(&coding.stripes) {
             let Some(s) = s else { continue };
-            let truth = truth_of(f, p);
+            let truth = rows.stripe_of(p);
             match truth {
                 Some(q) => {
                     t.matched += 1;
-                    if q.stripe == u32::from(*s) {
+                    if q == u32::from(*s) {
                         t.right += 1;
                     }
                 }
@@ -167,10 +161,11 @@ fn temporal_reconciliation_recovers_dropped_points_right() {
     let recovered = reconcile(&mut coded, &TemporalParams::default());
     let (mut right, mut wrong, mut untrue, mut relabelled, mut dropped) = (0, 0, 0, 0, 0);
     for ((c, f), b) in coded.iter().zip(&frames).zip(&before) {
+        let rows = TruthRows::new(&f.truth);
         for ((p, s), was) in c.points.iter().zip(&c.coding.stripes).zip(b) {
             match (s, was) {
-                (Some(s), None) => match truth_of(f, p) {
-                    Some(q) if q.stripe == u32::from(*s) => right += 1,
+                (Some(s), None) => match rows.stripe_of(p) {
+                    Some(q) if q == u32::from(*s) => right += 1,
                     Some(_) => wrong += 1,
                     None => untrue += 1,
                 },
