@@ -398,8 +398,8 @@ impl Registration {
     /// The golden heights (plus the height offset) at every cell of `scan`; NaN where the golden scan shows no
     /// part (outside it, in its holes) or has no data.
     ///
-    /// On a wall of the golden part — where its heights within one golden cell of the point span more than
-    /// [`GOLDEN_WALL_MM`] — the reference is the scan's own height wherever that lies within the span: there a
+    /// On a wall of the golden part — where its heights in the 4 x 4 golden cells around the point (the bilinear
+    /// neighbourhood and one cell beyond on each side) span more than [`GOLDEN_WALL_MM`] — the reference is the scan's own height wherever that lies within the span: there a
     /// cell's height depends on exactly where the wall is, which neither scan pins down to a cell (each codes a
     /// slightly different piece of a boss's rim; a cell compared across them is off by millimetres), so only a
     /// height outside everything the golden part shows around the point is a deviation.
@@ -430,8 +430,8 @@ impl Registration {
 }
 
 /// Least height span of a golden scan around a point that makes it a wall there ([`Registration::heights`]), mm. A
-/// dent or bump the inspection measures rises at most a few tenths of a millimetre over the 0.4-0.5 mm the span is
-/// taken over; a boss's or a step's side spans millimetres.
+/// dent or bump the inspection measures (slopes up to about 0.3) rises a few tenths of a millimetre over the four
+/// cells the span is taken over (0.9 mm at the default 0.22 mm cell); a boss's or a step's side spans millimetres.
 pub const GOLDEN_WALL_MM: f64 = 1.0;
 
 /// The least and greatest part height (above `floor_mm`) of the 4 x 4 cells around (x, y) — the bilinear
