@@ -399,10 +399,11 @@ impl Registration {
     /// part (outside it, in its holes) or has no data.
     ///
     /// On a wall of the golden part — where its heights in the 4 x 4 golden cells around the point (the bilinear
-    /// neighbourhood and one cell beyond on each side) span more than [`GOLDEN_WALL_MM`] — the reference is the scan's own height wherever that lies within the span: there a
-    /// cell's height depends on exactly where the wall is, which neither scan pins down to a cell (each codes a
-    /// slightly different piece of a boss's rim; a cell compared across them is off by millimetres), so only a
-    /// height outside everything the golden part shows around the point is a deviation.
+    /// neighbourhood and one cell beyond on each side) span more than [`GOLDEN_WALL_MM`] — the reference is the
+    /// scan's own height wherever that lies within the span: there a cell's height depends on exactly where the
+    /// wall is, which neither scan pins down to a cell (each codes a slightly different piece of a boss's rim; a
+    /// cell compared across them is off by millimetres), so only a height outside everything the golden part shows
+    /// around the point is a deviation.
     pub fn heights(&self, scan: &RangeImage, golden: &RangeImage, belt_level_mm: f64) -> Vec<f32> {
         let mut out = Vec::with_capacity(scan.z.len());
         for j in 0..scan.height {

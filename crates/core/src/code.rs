@@ -8,13 +8,14 @@
 //!    occupy over the measuring range, and the height each candidate label implies. Labels along a row increase
 //!    with the column (the ordering constraint), except that one sheet may be seen twice where an edge runs along
 //!    the row (its upper part on the upper surface, the rest beyond the edge lower down; see `Transitions::cost`):
-//!    a repeated label, the second point lower by more than a jump, costs what a false point costs. A labelling of the row is scored by the stripes it declares
-//!    missing and the points it declares false: a stripe may vanish where the surface rises away from the
-//!    projector (the sheet hits a wall the camera cannot see, or a belt spot hidden from the camera), or where it
-//!    leaves the image at the height of its neighbours, almost for free; anywhere else a missing stripe costs
-//!    [`CodingParams::skip_cost`]. Each point's label is decided from min-marginals of that score (a forward and a
-//!    backward pass of dynamic programming over the row): it is kept only when the best labelling that gives it
-//!    this label beats every labelling that gives it another (or none) by [`CodingParams::margin`].
+//!    a repeated label, the second point lower by more than a jump, costs what a false point costs. A labelling of
+//!    the row is scored by the stripes it declares missing and the points it declares false: a stripe may vanish
+//!    where the surface rises away from the projector (the sheet hits a wall the camera cannot see, or a belt spot
+//!    hidden from the camera), or where it leaves the image at the height of its neighbours, almost for free;
+//!    anywhere else a missing stripe costs [`CodingParams::skip_cost`]. Each point's label is decided from
+//!    min-marginals of that score (a forward and a backward pass of dynamic programming over the row): it is kept
+//!    only when the best labelling that gives it this label beats every labelling that gives it another (or none)
+//!    by [`CodingParams::margin`].
 //! 2. **Segments, with the paper's stripe-coding rules.** Points are linked down the image into segments by the
 //!    rule base `rules/stripe_coding.fll` (rules 1 and 4: a point joins a segment when its height is not very
 //!    small and not very different from its neighbour's; rules 2 and 3: a gap is bridged when it is very small, or
@@ -447,23 +448,24 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
                 (c >= params.min_votes && first < k && last > k).then_some(w)
             };
-            // The one label the row's order leaves point j (between its labelled neighbours in `labels`), when its
-            // track's majority is that label.
-            let sandwiched = |labels: &[Option<u16>], j: usize, i: usize| -> Option<u16> {
+            // The one label the row's order leaves point j (between its labelled neighbours in `labels`).
+            let left_by_order = |labels: &[Option<u16>], j: usize| -> Option<u16> {
                 let lo = *labels[..j].iter().rev().flatten().next()?;
                 let hi = *labels[j + 1..].iter().flatten().next()?;
                 let w = lo.checked_add(1)?;
-                (hi.checked_sub(1) == Some(w) && majority(i) == Some(w)).then_some(w)
+                (hi.checked_sub(1) == Some(w)).then_some(w)
             };
-            // The same, for a track that reads no label otherwise (no settled points, or too few).
+            // That label, when the track's majority (point `i`'s) is that label.
+            let sandwiched = |labels: &[Option<u16>], j: usize, i: usize| -> Option<u16> {
+                left_by_order(labels, j).filter(|&w| majority(i) == Some(w))
+            };
+            // That label, when the track reads no other (no settled points, or too few for any other label).
             let unopposed = |labels: &[Option<u16>], j: usize, i: usize| -> Option<u16> {
-                let lo = *labels[..j].iter().rev().flatten().next()?;
-                let hi = *labels[j + 1..].iter().flatten().next()?;
-                let w = lo.checked_add(1)?;
-                let other = votes
-                    .get(&roots[offsets[k] + i])
-                    .is_some_and(|v| v.iter().any(|x| x.0 != w && x.1 >= params.min_votes));
-                (hi.checked_sub(1) == Some(w) && !other).then_some(w)
+                left_by_order(labels, j).filter(|&w| {
+                    !votes
+                        .get(&roots[offsets[k] + i])
+                        .is_some_and(|v| v.iter().any(|x| x.0 != w && x.1 >= params.min_votes))
+                })
             };
             for i in s..e {
                 let current = f.coding.stripes[i];
