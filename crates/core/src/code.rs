@@ -26,7 +26,8 @@
 //! 3. **Segment vote.** A segment takes the label most of its confidently coded points agree on (at least
 //!    [`CodingParams::min_vote_share`] of them); its undecided points inherit it where the geometry allows, and
 //!    points that confidently disagree are dropped. Points on the belt (height very small, which rule 1 keeps out
-//!    of segments) keep their per-row decision.
+//!    of segments) keep their per-row decision, unless it breaks the row's order with the labels the segments
+//!    voted for the row's points on both sides of it (a row near a plate's edge read one stripe over as a whole).
 //!
 //! Fragments — points extraction marked cut ([`StripePoint::cut`]: a profile that falls to the background in one
 //! pixel on one side) that are also much dimmer than their row's other points ([`CodingParams::fragment_intensity`])
@@ -1118,6 +1119,12 @@ pub struct StripeCoder {
     fragment: Vec<bool>,
     /// Peak intensities of the row's uncut points (for the fragment test).
     levels: Vec<f32>,
+    /// Per point of the frame: the label its segment voted for where the point's own row reads another by more
+    /// than the override cost (the point is dropped), [`NO_LABEL`] elsewhere. It still orders the row's points only
+    /// their row labelled (see [`StripeCoder::order_by_overruled`]).
+    overruled: Vec<u16>,
+    /// Per point of the row being checked against overruled points (reused).
+    scratch_labels: Vec<u16>,
 }
 
 impl StripeCoder {
@@ -1233,6 +1240,8 @@ impl StripeCoder {
             row_points: Vec::new(),
             fragment: Vec::new(),
             levels: Vec::new(),
+            overruled: Vec::new(),
+            scratch_labels: Vec::new(),
         })
     }
 
@@ -1295,6 +1304,8 @@ impl StripeCoder {
         );
         self.fragment.clear();
         self.fragment.resize(points.len(), false);
+        self.overruled.clear();
+        self.overruled.resize(points.len(), NO_LABEL);
         // Pass 1: each row on its own.
         let mut start = 0;
         while start < self.order.len() {
@@ -1776,6 +1787,49 @@ impl StripeCoder {
                 .is_finite()
     }
 
+    /// The ordering check against overruled points (`self.order[start..end]`, one row): a point only its row
+    /// labelled (on the belt, in no segment) that lies between overruled points of its row is dropped where its
+    /// label breaks the order with the labels their segments voted for. Where a plate's height moves its stripes by
+    /// one pitch, a row near the plate's edge can read the whole plate one stripe over with confidence: the
+    /// segments running down the plate drop those readings, but the stripe that lands on its neighbour's belt
+    /// column reads as belt, out of every segment, and kept its row's label. Only between overruled points: beyond
+    /// the last of them the belt past a tall part may show the part's last sheets a second time.
+    fn order_by_overruled(&mut self, start: usize, end: usize, out: &mut Coding) {
+        let row = &self.order[start..end];
+        if row
+            .iter()
+            .all(|&idx| self.overruled[idx as usize] == NO_LABEL)
+        {
+            return;
+        }
+        // Smallest overruled label to the right of each point (NO_LABEL: none).
+        let mut right_min = std::mem::take(&mut self.scratch_labels);
+        right_min.clear();
+        right_min.resize(row.len(), NO_LABEL);
+        let mut right = NO_LABEL;
+        for (k, &idx) in row.iter().enumerate().rev() {
+            right_min[k] = right;
+            right = right.min(self.overruled[idx as usize]);
+        }
+        // Largest overruled label to the left.
+        let mut left: Option<u16> = None;
+        for (k, &idx) in row.iter().enumerate() {
+            let idx = idx as usize;
+            if let (Some(l), Some(lm)) = (out.stripes[idx], left)
+                && self.state[idx].segment == NO_SEGMENT
+                && right_min[k] != NO_LABEL
+                && (lm >= l || right_min[k] <= l)
+            {
+                out.stripes[idx] = None;
+            }
+            let o = self.overruled[idx];
+            if o != NO_LABEL {
+                left = Some(left.map_or(o, |lm| lm.max(o)));
+            }
+        }
+        self.scratch_labels = right_min;
+    }
+
     /// Pass 3: segment votes, per-point decisions and the ordering check.
     fn decide(&mut self, points: &[StripePoint], out: &mut Coding) {
         let share = self.params.min_vote_share;
@@ -1813,6 +1867,7 @@ impl StripeCoder {
                                 l == w && d <= self.params.segment_override_cost as f32
                             });
                             if !fragment && st.best != w && !near {
+                                self.overruled[idx] = w;
                                 None
                             } else {
                                 let b = self.band_of(p.row, usize::from(w));
@@ -1863,6 +1918,7 @@ impl StripeCoder {
                     last = Some((idx, l));
                 }
             }
+            self.order_by_overruled(i, end, out);
             i = end;
         }
         for (idx, l) in out.stripes.iter().enumerate() {
