@@ -255,14 +255,15 @@ pub struct CodedFrame {
 pub struct TemporalParams {
     /// Largest column change (px) between a point and the same stripe on the same row one frame later: the part
     /// moves one frame step (0.5 mm in the paper's set-up) and a smooth surface moves the stripe by a fraction of a
-    /// pixel; a step of the surface (tens of pixels) ends the track.
+    /// pixel, a sheet sliding down a flank by one or two; a step of the surface (tens of pixels) ends the track.
     pub link_px: f64,
     /// Fewest coded points of a track that must agree on its label.
     pub min_votes: usize,
     /// Least share of the track's coded points that must agree.
     pub min_share: f64,
     /// Fewest agreeing points, in frames before and after, for a track to overrule a label the point's own row
-    /// settled (0: never). A single frame can be misread with confidence as a whole (a sheet's dim tail read as one
+    /// settled (0: never); as many, on one side only, relabel a point at the track's end (or start) that only the
+    /// segment vote coded. A single frame can be misread with confidence as a whole (a sheet's dim tail read as one
     /// more stripe shifts its row by one index) while the frames around it read the same stripes right.
     pub overrule_votes: usize,
 }
@@ -270,7 +271,10 @@ pub struct TemporalParams {
 impl Default for TemporalParams {
     fn default() -> Self {
         Self {
-            link_px: 1.0,
+            // Measured on the demo's 22 frames (wrong stripe indices after reconciliation): 1 px -> 1,451, 1.5 ->
+            // 1,448, 2 -> 1,298, 2.5 -> 1,298, 3 -> 1,497 (a sheet sliding over the step's edge moves 1.2-1.7 px a
+            // frame; at 3 px tracks start to join other points).
+            link_px: 2.0,
             min_votes: 3,
             min_share: 0.9,
             // Measured on the demo's 22 frames (wrong stripe indices 4,262 without): 3, 4 and 6 -> 3,030, 10 -> 3,052.
@@ -285,7 +289,10 @@ impl Default for TemporalParams {
 /// takes its track's label when the points of the track their own rows settled agree on it (at least `min_votes`,
 /// at least `min_share` of them, in frames before and after) and the label is one its own row could nearly take.
 /// So does a point only the segment vote coded (its row could not settle it) whose track reads it otherwise: a
-/// segment that runs the length of a plate can carry one frame's misreading down every row. Even a label the
+/// segment that runs the length of a plate can carry one frame's misreading down every row. At a track's end (a
+/// sheet sliding over an edge, about to vanish) there is no frame after it: such a point follows the track when
+/// at least [`TemporalParams::overrule_votes`] settled points of one side agree (a dropped point is still only
+/// interpolated). Even a label the
 /// point's own row settled is overruled when at least [`TemporalParams::overrule_votes`] of the track's settled
 /// points, in frames before and after, agree on another; points no track supports are then dropped where the
 /// overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
@@ -490,8 +497,15 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 let Some((w, c, around)) = winner(i) else {
                     continue;
                 };
-                // Interpolation only: the track codes the label before and after this frame.
-                if c < params.min_votes || !near.contains(&w) || !around || current == Some(w) {
+                // Interpolation: the track codes the label before and after this frame. At a track's end (or
+                // start), a label the segment vote gave gives way to as many settled points as overrule a row.
+                let extends =
+                    current.is_some() && params.overrule_votes > 0 && c >= params.overrule_votes;
+                if c < params.min_votes
+                    || !near.contains(&w)
+                    || !(around || extends)
+                    || current == Some(w)
+                {
                     continue;
                 }
                 proposal[i - s] = Some(w);
@@ -1998,6 +2012,34 @@ mod temporal_tests {
         assert_eq!(f[3].coding.stripes[1], Some(1));
         assert_eq!(f[4].coding.stats.coded, 3);
         assert_eq!(f[4].coding.stats.ambiguous, 0);
+    }
+
+    #[test]
+    fn a_point_only_the_segment_vote_coded_at_its_tracks_end_follows_the_track() {
+        // The last frame's middle stripe, sliding 1.5 px a frame, coded 0 by its segment (its row not settled):
+        // its track's settled points before it read 1.
+        let misread = |n: usize| {
+            let mut f = frames(n, 1.5);
+            let last = f.len() - 1;
+            f[last].coding.stripes[1] = Some(0);
+            f[last].coding.near[1] = [0, 1, NO_LABEL];
+            f[last].coding.row_confident[1] = false;
+            // Its left neighbour dropped, so that the row stays ordered either way.
+            drop(&mut f[last], 0, [0, NO_LABEL, NO_LABEL]);
+            f
+        };
+        let mut f = misread(7);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 1);
+        assert_eq!(f[6].coding.stripes[1], Some(1));
+        // Fewer settled points than it takes to overrule a row (5 of 6): left alone.
+        let mut f = misread(6);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        assert_eq!(f[5].coding.stripes[1], Some(0));
+        // A dropped point at the track's end is not extrapolated (the row's last, which its order does not pin
+        // down either).
+        let mut f = frames(7, 1.5);
+        drop(&mut f[6], 2, [2, 1, NO_LABEL]);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
     }
 
     #[test]
