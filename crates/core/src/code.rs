@@ -266,6 +266,11 @@ pub struct TemporalParams {
     /// segment vote coded. A single frame can be misread with confidence as a whole (a sheet's dim tail read as one
     /// more stripe shifts its row by one index) while the frames around it read the same stripes right.
     pub overrule_votes: usize,
+    /// Fewest agreeing labels the segment vote gave the track's points, in frames before and after, for the track to
+    /// overrule a label the point's own row settled when no other frame's row settled one (0: never). A band of rows
+    /// can be read one stripe over with confidence in one frame while the frames around it, ambiguous row by row,
+    /// were coded right by their segments.
+    pub overrule_segment_votes: usize,
 }
 
 impl Default for TemporalParams {
@@ -279,6 +284,10 @@ impl Default for TemporalParams {
             min_share: 0.9,
             // Measured on the demo's 22 frames (wrong stripe indices 4,262 without): 3, 4 and 6 -> 3,030, 10 -> 3,052.
             overrule_votes: 6,
+            // Twice `overrule_votes`: a segment's label is weaker evidence than a row's. Measured on the demo's 22
+            // frames (wrong stripe indices after reconciliation, 1,298 without): 6 -> 1,112, 8 -> 1,118, 12 ->
+            // 1,148, 24 (more than the scan's other frames) -> 1,298; every relabelling right at each.
+            overrule_segment_votes: 12,
         }
     }
 }
@@ -296,7 +305,9 @@ impl Default for TemporalParams {
 /// point's own row settled is overruled when at least [`TemporalParams::overrule_votes`] of the track's settled
 /// points, in frames before and after, agree on another; points no track supports are then dropped where the
 /// overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
-/// conflict nothing is overruled. Where the row's order leaves a point one label alone (its labelled neighbours are
+/// conflict nothing is overruled. Labels the segment vote gave count for less: at least
+/// [`TemporalParams::overrule_segment_votes`] of them, before and after, overrule a settled label when no other
+/// frame's row settled another (a band of rows misread with confidence in one frame, ambiguous in the others). Where the row's order leaves a point one label alone (its labelled neighbours are
 /// that label less and more one), a weaker agreement of its track is enough: its most agreed label, coded by at
 /// least `min_votes` settled points before and after the frame, whatever their share (a track cut short by a bump's
 /// flank, or sharing a frame's misreading): a dropped point takes it if its row could nearly take it, and a point
@@ -402,26 +413,29 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
             }
         }
     }
-    // Votes per track: (label, count, first frame, last frame), few labels per track.
-    let mut votes: std::collections::HashMap<usize, Vec<(u16, usize, usize, usize)>> =
-        std::collections::HashMap::new();
+    // Votes per track: (label, count, first frame, last frame), few labels per track; `votes` from the labels the
+    // points' own rows settled, `segment_votes` from the labels only the segment vote gave (a consistent misreading
+    // can spread through those, so they count for less, see [`TemporalParams::overrule_segment_votes`]).
+    type Votes = std::collections::HashMap<usize, Vec<(u16, usize, usize, usize)>>;
+    let (mut votes, mut segment_votes): (Votes, Votes) = Default::default();
     for (k, f) in frames.iter().enumerate() {
         for (i, l) in f.coding.stripes.iter().enumerate() {
-            // Only labels the point's own row settled vote: a label the segment vote gave can be a consistent
-            // misreading, and following it would only spread it.
-            if let Some(l) = *l
-                && f.coding.row_confident.get(i).copied().unwrap_or(false)
-            {
-                let root = find(&mut parent, offsets[k] + i);
-                let v = votes.entry(root).or_default();
-                match v.iter_mut().find(|x| x.0 == l) {
-                    Some(x) => {
-                        x.1 += 1;
-                        x.2 = x.2.min(k);
-                        x.3 = x.3.max(k);
-                    }
-                    None => v.push((l, 1, k, k)),
+            let Some(l) = *l else { continue };
+            let settled = f.coding.row_confident.get(i).copied().unwrap_or(false);
+            let root = find(&mut parent, offsets[k] + i);
+            let into = if settled {
+                &mut votes
+            } else {
+                &mut segment_votes
+            };
+            let v = into.entry(root).or_default();
+            match v.iter_mut().find(|x| x.0 == l) {
+                Some(x) => {
+                    x.1 += 1;
+                    x.2 = x.2.min(k);
+                    x.3 = x.3.max(k);
                 }
+                None => v.push((l, 1, k, k)),
             }
         }
     }
@@ -456,6 +470,25 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
                 (c >= params.min_votes && first < k && last > k).then_some(w)
             };
+            // The label the segment vote gave the track's points in frames before and after this one, when at least
+            // `overrule_segment_votes` of them agree, 90% of its segment-given labels, and no other frame's row
+            // settled another label.
+            let segment_winner = |i: usize| -> Option<u16> {
+                let root = roots[offsets[k] + i];
+                let v = segment_votes.get(&root)?;
+                let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
+                let all: usize = v.iter().map(|x| x.1).sum();
+                let settled_other: usize = votes
+                    .get(&root)
+                    .map_or(0, |sv| sv.iter().filter(|x| x.0 != w).map(|x| x.1).sum());
+                (params.overrule_segment_votes > 0
+                    && c >= params.overrule_segment_votes
+                    && first < k
+                    && last > k
+                    && (c as f64) >= params.min_share * all as f64
+                    && settled_other <= 1)
+                    .then_some(w)
+            };
             // The one label the row's order leaves point j (between its labelled neighbours in `labels`).
             let left_by_order = |labels: &[Option<u16>], j: usize| -> Option<u16> {
                 let lo = *labels[..j].iter().rev().flatten().next()?;
@@ -482,6 +515,12 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                         && let Some((w, c, around)) = winner(i)
                         && around
                         && c >= params.overrule_votes
+                        && current != Some(w)
+                    {
+                        proposal[i - s] = Some(w);
+                        changed = true;
+                        overruled = true;
+                    } else if let Some(w) = segment_winner(i)
                         && current != Some(w)
                     {
                         proposal[i - s] = Some(w);
@@ -2012,6 +2051,36 @@ mod temporal_tests {
         assert_eq!(f[3].coding.stripes[1], Some(1));
         assert_eq!(f[4].coding.stats.coded, 3);
         assert_eq!(f[4].coding.stats.ambiguous, 0);
+    }
+
+    #[test]
+    fn a_frame_misread_with_confidence_among_frames_its_segments_coded_follows_them() {
+        // 16 frames whose rows were all ambiguous and coded (right) by their segments, but for frame 6, whose row
+        // read every stripe one over with confidence.
+        let setup = |also_settled: Option<usize>| {
+            let mut f = frames(16, 0.2);
+            for (k, frame) in f.iter_mut().enumerate() {
+                frame.coding.row_confident = vec![k == 6 || Some(k) == also_settled; 3];
+                if k == 6 || Some(k) == also_settled {
+                    frame.coding.stripes = vec![Some(1), Some(2), Some(3)];
+                }
+            }
+            f
+        };
+        let mut f = setup(None);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 3);
+        assert_eq!(f[6].coding.stripes, vec![Some(0), Some(1), Some(2)]);
+        // Off: the confident reading stands.
+        let mut f = setup(None);
+        let off = TemporalParams {
+            overrule_segment_votes: 0,
+            ..TemporalParams::default()
+        };
+        assert_eq!(reconcile(&mut f, &off), 0);
+        // A second frame whose row settled the same reading: the segments' labels no longer decide.
+        let mut f = setup(Some(11));
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        assert_eq!(f[6].coding.stripes, vec![Some(1), Some(2), Some(3)]);
     }
 
     #[test]
