@@ -1101,6 +1101,17 @@ mod tests {
         r
     }
 
+    /// The registration that maps every point onto itself.
+    const IDENTITY: Registration = Registration {
+        dx_mm: 0.0,
+        dy_mm: 0.0,
+        theta_rad: 0.0,
+        dz_mm: 0.0,
+        centre_mm: [0.0, 0.0],
+        mean_difference_mm: 0.0,
+        overlap: 1.0,
+    };
+
     #[test]
     fn a_golden_wall_is_compared_within_its_span_and_flat_ground_as_it_is() {
         // A boss 8 mm high on a 10 mm plate; the scan sees it 0.1 mm (half a cell) further along x, and has a dent
@@ -1111,16 +1122,7 @@ mod tests {
             let d = (x - 6.5).hypot(y + 6.5);
             boss(x - 0.1, y) - if d < 1.5 { 0.4 * (1.0 - d / 1.5) } else { 0.0 }
         });
-        let reg = Registration {
-            dx_mm: 0.0,
-            dy_mm: 0.0,
-            theta_rad: 0.0,
-            dz_mm: 0.0,
-            centre_mm: [0.0, 0.0],
-            mean_difference_mm: 0.0,
-            overlap: 1.0,
-        };
-        let reference = reg.heights(&scan, &golden, 0.5);
+        let reference = IDENTITY.heights(&scan, &golden, 0.5);
         let (mut plain_max, mut wall_max) = (0.0f64, 0.0f64);
         for j in 0..scan.height {
             for i in 0..scan.width {
@@ -1169,16 +1171,7 @@ mod tests {
             let d = (x - 5.0).hypot(y);
             part(x - 0.1) - if d < 2.0 { 0.2 * (1.0 - d / 2.0) } else { 0.0 }
         });
-        let reg = Registration {
-            dx_mm: 0.0,
-            dy_mm: 0.0,
-            theta_rad: 0.0,
-            dz_mm: 0.0,
-            centre_mm: [0.0, 0.0],
-            mean_difference_mm: 0.0,
-            overlap: 1.0,
-        };
-        let reference = reg.heights(&scan, &golden, 0.5);
+        let reference = IDENTITY.heights(&scan, &golden, 0.5);
         let mut chamfer_max = 0.0f64;
         let mut dent_min = 0.0f64;
         for j in 0..scan.height {
