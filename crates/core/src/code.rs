@@ -309,31 +309,31 @@ impl Default for TemporalParams {
 /// Temporal reconciliation of a scan's coding (frames in travel order): a point is linked to the point of the next
 /// frame on the same row when each is the other's only neighbour within [`TemporalParams::link_px`] — the same stripe
 /// on the same surface, 0.5 mm further along — and linked points form tracks. A point the coder dropped as ambiguous
-/// takes its track's label when the points of the track their own rows settled agree on it (at least `min_votes`,
-/// at least `min_share` of them, in frames before and after) and the label is one its own row could nearly take.
-/// So does a point only the segment vote coded (its row could not settle it) whose track reads it otherwise: a
-/// segment that runs the length of a plate can carry one frame's misreading down every row. At a track's end (a
-/// sheet sliding over an edge, about to vanish) there is no frame after it: such a point follows the track when
-/// at least [`TemporalParams::overrule_votes`] settled points of one side agree (a dropped point is still only
-/// interpolated). Even a label the
-/// point's own row settled is overruled when at least [`TemporalParams::overrule_votes`] of the track's settled
-/// points, in frames before and after, agree on another; points no track supports are then dropped where the
-/// overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
+/// takes its track's label when the points of the track their own rows settled agree on it (at least `min_votes`, at
+/// least `min_share` of them, in frames before and after) and the label is one its own row could nearly take. So does a
+/// point only the segment vote coded (its row could not settle it) whose track reads it otherwise: a segment that runs
+/// the length of a plate can carry one frame's misreading down every row. At a track's end (a sheet sliding over an
+/// edge, about to vanish) there is no frame after it: such a point follows the track when at least
+/// [`TemporalParams::overrule_votes`] settled points of one side agree (a dropped point is still only interpolated).
+/// Even a label the point's own row settled is overruled when at least [`TemporalParams::overrule_votes`] of the
+/// track's settled points, in frames before and after, agree on another; points no track supports are then dropped
+/// where the overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
 /// conflict nothing is overruled. Labels the segment vote gave count for less: at least
-/// [`TemporalParams::overrule_segment_votes`] of them, before and after, overrule a settled label when no other
-/// frame's row settled another (a band of rows misread with confidence in one frame, ambiguous in the others). Where the row's order leaves a point one label alone (its labelled neighbours are
-/// that label less and more one), a weaker agreement of its track is enough: its most agreed label, coded by at
-/// least `min_votes` settled points before and after the frame, whatever their share (a track cut short by a bump's
-/// flank, or sharing a frame's misreading): a dropped point takes it if its row could nearly take it, and a point
-/// that would otherwise give way to an overruling track takes it instead of being dropped. A dropped point the
-/// row's order leaves one label takes it even when its track settled on nothing, as long as the track reads no
-/// other label from `min_votes` settled points (every row of the track ambiguous: a stripe beside a hidden one, or
-/// the scan's last frames); it still takes only a label its row could nearly take. The row must stay
-/// ordered (labels growing with the column) with all its changes, or only the dropped points that keep it ordered by
-/// themselves are recovered. Returns how many points were recovered, relabelled or dropped.
+/// [`TemporalParams::overrule_segment_votes`] of them, before and after, overrule a settled label when no other frame's
+/// row settled another (a band of rows misread with confidence in one frame, ambiguous in the others). Where the row's
+/// order leaves a point one label alone (its labelled neighbours are that label less and more one), a weaker agreement
+/// of its track is enough: its most agreed label, coded by at least `min_votes` settled points before and after the
+/// frame, whatever their share (a track cut short by a bump's flank, or sharing a frame's misreading): a dropped point
+/// takes it if its row could nearly take it, and a point that would otherwise give way to an overruling track takes it
+/// instead of being dropped. A dropped point the row's order leaves one label takes it even when its track settled on
+/// nothing, as long as the track reads no other label from `min_votes` settled points (every row of the track
+/// ambiguous: a stripe beside a hidden one, or the scan's last frames); it still takes only a label its row could
+/// nearly take. The row must stay ordered (labels growing with the column) with all its changes, or only the dropped
+/// points that keep it ordered by themselves are recovered. Returns how many points were recovered, relabelled or
+/// dropped.
 ///
-/// Where a stripe falls into a hole, the rows it leaves are read as well one stripe over, and the coder drops the
-/// other stripes' points there; the frames before and after saw the same stripes on the same surface and coded them.
+/// Where a stripe falls into a hole, the rows it leaves are read as well one stripe over, and the coder drops the other
+/// stripes' points there; the frames before and after saw the same stripes on the same surface and coded them.
 pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
     fn find(parent: &mut [usize], mut a: usize) -> usize {
         while parent[a] != a {
