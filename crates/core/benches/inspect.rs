@@ -11,7 +11,8 @@ fn main() {
     divan::main();
 }
 
-fn part() -> RangeImage {
+/// The part, with its four defects or (`defects` false) without them: a golden scan of a good part.
+fn part_with(defects: bool) -> RangeImage {
     let (w, h) = (841, 641);
     let mut r = RangeImage {
         origin_mm: [-42.0, 32.0],
@@ -27,6 +28,8 @@ fn part() -> RangeImage {
             let n = (((i * 7919 + j * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.024;
             let z = if x.abs() > 40.0 || y.abs() > 30.0 {
                 n.abs()
+            } else if !defects {
+                10.0 + n
             } else if (x - 10.0).hypot(y + 10.0) < 2.0 {
                 f64::NAN
             } else {
@@ -45,6 +48,10 @@ fn part() -> RangeImage {
     r
 }
 
+fn part() -> RangeImage {
+    part_with(true)
+}
+
 #[divan::bench]
 fn inspect_80x60mm_at_0_1mm(b: divan::Bencher) {
     let r = part();
@@ -61,6 +68,22 @@ fn inspect_80x60mm_at_0_1mm(b: divan::Bencher) {
         )
         .expect("inspect");
         assert_eq!(i.detection.defects.len(), 4, "{:?}", i.detection.defects);
+        divan::black_box(i)
+    });
+}
+
+/// The same part against a golden scan of a good one (registration, then the golden heights within the
+/// registration's tolerance as the reference) instead of a fitted plane.
+#[divan::bench]
+fn inspect_80x60mm_at_0_1mm_against_golden(b: divan::Bencher) {
+    let r = part();
+    let golden = part_with(false);
+    let mut rules = SurfaceRules::shipped().expect("rules");
+    let cp = CharacterizeParams::default();
+    let dp = DetectParams::default();
+    b.bench_local(|| {
+        let i =
+            inspect(&r, ReferenceSource::Golden(&golden), &cp, &mut rules, &dp).expect("inspect");
         divan::black_box(i)
     });
 }

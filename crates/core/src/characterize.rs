@@ -387,12 +387,17 @@ pub struct Registration {
 impl Registration {
     /// Golden-part coordinates of scan point (x, y).
     pub fn map(&self, x: f64, y: f64) -> (f64, f64) {
+        self.mapper()(x, y)
+    }
+
+    /// [`Registration::map`] with the rotation's sine and cosine computed once, for loops over many points.
+    fn mapper(&self) -> impl Fn(f64, f64) -> (f64, f64) + use<> {
         let (c, s) = (self.theta_rad.cos(), self.theta_rad.sin());
-        let (u, v) = (x - self.centre_mm[0], y - self.centre_mm[1]);
-        (
-            c * u - s * v + self.centre_mm[0] + self.dx_mm,
-            s * u + c * v + self.centre_mm[1] + self.dy_mm,
-        )
+        let ([cx, cy], dx, dy) = (self.centre_mm, self.dx_mm, self.dy_mm);
+        move |x, y| {
+            let (u, v) = (x - cx, y - cy);
+            (c * u - s * v + cx + dx, s * u + c * v + cy + dy)
+        }
     }
 
     /// The golden heights (plus the height offset) at every cell of `scan`; NaN where the golden scan shows no
@@ -406,10 +411,12 @@ impl Registration {
     /// around the point is a deviation.
     pub fn heights(&self, scan: &RangeImage, golden: &RangeImage, belt_level_mm: f64) -> Vec<f32> {
         let mut out = Vec::with_capacity(scan.z.len());
+        let map = self.mapper();
+        let spans = SpanMap::new(golden, belt_level_mm);
         for j in 0..scan.height {
             for i in 0..scan.width {
                 let (x, y) = cell_xy(scan, i, j);
-                let (gx, gy) = self.map(x, y);
+                let (gx, gy) = map(x, y);
                 let reference = match bilinear_above(golden, gx, gy, belt_level_mm) {
                     Some(z) => z + self.dz_mm,
                     None => {
@@ -418,7 +425,8 @@ impl Registration {
                     }
                 };
                 let z = f64::from(scan.z[j * scan.width + i]);
-                let band = local_span(golden, gx, gy, belt_level_mm)
+                let band = spans
+                    .at(golden, gx, gy)
                     .filter(|(lo, hi)| hi - lo > GOLDEN_WALL_MM && z.is_finite())
                     .or_else(|| {
                         // Elsewhere the golden heights within the registration's tolerance of the point.
@@ -480,6 +488,57 @@ fn local_span(range: &RangeImage, x: f64, y: f64, floor_mm: f64) -> Option<(f64,
     (lo <= hi).then_some((lo, hi))
 }
 
+/// [`local_span`] of every cell of a range image, computed once (a 4 x 4 minimum and maximum, separably): the
+/// span around (x, y) is the entry of the cell that holds it.
+struct SpanMap {
+    lo: Vec<f32>,
+    hi: Vec<f32>,
+    floor_mm: f64,
+}
+
+impl SpanMap {
+    fn new(range: &RangeImage, floor_mm: f64) -> Self {
+        let (w, h) = (range.width, range.height);
+        // Along rows: cells i-1..=i+2; then along columns: rows j-1..=j+2 of those.
+        let window = |k: usize, n: usize| k.saturating_sub(1)..(k + 3).min(n);
+        let (mut row_lo, mut row_hi) = (vec![f32::INFINITY; w * h], vec![f32::NEG_INFINITY; w * h]);
+        for j in 0..h {
+            let line = &range.z[j * w..(j + 1) * w];
+            for i in 0..w {
+                for &v in &line[window(i, w)] {
+                    if f64::from(v) > floor_mm {
+                        row_lo[j * w + i] = row_lo[j * w + i].min(v);
+                        row_hi[j * w + i] = row_hi[j * w + i].max(v);
+                    }
+                }
+            }
+        }
+        let (mut lo, mut hi) = (vec![f32::INFINITY; w * h], vec![f32::NEG_INFINITY; w * h]);
+        for j in 0..h {
+            for jj in window(j, h) {
+                for i in 0..w {
+                    lo[j * w + i] = lo[j * w + i].min(row_lo[jj * w + i]);
+                    hi[j * w + i] = hi[j * w + i].max(row_hi[jj * w + i]);
+                }
+            }
+        }
+        Self { lo, hi, floor_mm }
+    }
+
+    /// The span around (x, y), when (x, y) lies in a cell of `range` (the one the map was made of).
+    fn at(&self, range: &RangeImage, x: f64, y: f64) -> Option<(f64, f64)> {
+        let fi = (x - range.origin_mm[0]) / range.spacing_mm[0];
+        let fj = (range.origin_mm[1] - y) / range.spacing_mm[1];
+        if !(fi >= 0.0 && fj >= 0.0 && fi < range.width as f64 && fj < range.height as f64) {
+            return local_span(range, x, y, self.floor_mm);
+        }
+        // Truncation is the floor here.
+        let k = fj as usize * range.width + fi as usize;
+        let (lo, hi) = (self.lo[k], self.hi[k]);
+        (lo <= hi).then_some((f64::from(lo), f64::from(hi)))
+    }
+}
+
 /// Bilinear height at (x, y): `None` unless all four surrounding cells hold a height.
 pub fn bilinear(range: &RangeImage, x: f64, y: f64) -> Option<f64> {
     bilinear_above(range, x, y, f64::NEG_INFINITY)
@@ -490,13 +549,12 @@ pub fn bilinear(range: &RangeImage, x: f64, y: f64) -> Option<f64> {
 pub fn bilinear_above(range: &RangeImage, x: f64, y: f64, floor_mm: f64) -> Option<f64> {
     let fi = (x - range.origin_mm[0]) / range.spacing_mm[0];
     let fj = (range.origin_mm[1] - y) / range.spacing_mm[1];
-    if !(fi >= 0.0 && fj >= 0.0) {
+    // (The conversions truncate, which for these non-negative values is the floor, without a libm call.)
+    if !(fi >= 0.0 && fj >= 0.0 && fi + 1.0 < range.width as f64 && fj + 1.0 < range.height as f64)
+    {
         return None;
     }
-    let (i, j) = (fi.floor() as usize, fj.floor() as usize);
-    if i + 1 >= range.width || j + 1 >= range.height {
-        return None;
-    }
+    let (i, j) = (fi as usize, fj as usize);
     let (a, b) = (fi - i as f64, fj - j as f64);
     let at = |i: usize, j: usize| f64::from(range.z[j * range.width + i]);
     let (z00, z10, z01, z11) = (at(i, j), at(i + 1, j), at(i, j + 1), at(i + 1, j + 1));
@@ -543,8 +601,9 @@ fn registration_cost(
 ) -> (f64, f64, f64) {
     scratch.clear();
     let mut off = 0usize;
+    let map = r.mapper();
     for &(x, y, z) in sample {
-        let (gx, gy) = r.map(x, y);
+        let (gx, gy) = map(x, y);
         match bilinear_above(golden, gx, gy, belt) {
             Some(g) => scratch.push(z - g),
             None => off += 1,
@@ -1152,6 +1211,32 @@ mod tests {
         let k = j * scan.width + i;
         let dev = f64::from(scan.z[k] - reference[k]);
         assert!((dev + 0.4).abs() < 0.06, "{dev}");
+    }
+
+    #[test]
+    fn the_span_map_is_the_span_of_every_point() {
+        // Steps, a hole (NaN) and belt cells (below the floor), at points inside and off the grid.
+        let r = image(37, 23, |x, y| {
+            if x.hypot(y) < 0.7 {
+                f64::NAN
+            } else if x < -2.0 {
+                0.1
+            } else {
+                10.0 + (3.0 * x).sin() + if y > 1.0 { 2.0 } else { 0.0 }
+            }
+        });
+        let spans = SpanMap::new(&r, 0.5);
+        let mut rng = 12345u64;
+        for _ in 0..2000 {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let x = ((rng >> 11) % 10_000) as f64 / 10_000.0 * 9.0 - 4.5;
+            let y = ((rng >> 35) % 10_000) as f64 / 10_000.0 * 6.0 - 3.0;
+            let want = local_span(&r, x, y, 0.5).map(|(a, b)| (a as f32, b as f32));
+            let got = spans.at(&r, x, y).map(|(a, b)| (a as f32, b as f32));
+            assert_eq!(got, want, "at ({x}, {y})");
+        }
     }
 
     #[test]
