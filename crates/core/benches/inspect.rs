@@ -87,3 +87,20 @@ fn inspect_80x60mm_at_0_1mm_against_golden(b: divan::Bencher) {
         divan::black_box(i)
     });
 }
+
+/// Registration alone (the golden inspection's first step).
+#[divan::bench]
+fn register_80x60mm_at_0_1mm(b: divan::Bencher) {
+    let r = part();
+    let golden = part_with(false);
+    b.bench_local(|| {
+        divan::black_box(
+            stripe3d_core::characterize::register(
+                &r,
+                &golden,
+                &stripe3d_core::characterize::RegisterParams::default(),
+            )
+            .expect("register"),
+        )
+    });
+}
