@@ -425,25 +425,40 @@ impl Registration {
                     }
                 };
                 let z = f64::from(scan.z[j * scan.width + i]);
-                let band = spans
+                if !z.is_finite() {
+                    out.push(reference as f32);
+                    continue;
+                }
+                let wall = spans
                     .at(golden, gx, gy)
-                    .filter(|(lo, hi)| hi - lo > GOLDEN_WALL_MM && z.is_finite())
-                    .or_else(|| {
-                        // Elsewhere the golden heights within the registration's tolerance of the point.
-                        let d = GOLDEN_REGISTRATION_TOLERANCE_MM;
-                        let (mut lo, mut hi) = (reference - self.dz_mm, reference - self.dz_mm);
-                        for (ox, oy) in [(d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)] {
-                            if let Some(g) = bilinear_above(golden, gx + ox, gy + oy, belt_level_mm)
-                            {
-                                lo = lo.min(g);
-                                hi = hi.max(g);
-                            }
-                        }
-                        z.is_finite().then_some((lo, hi))
-                    });
-                out.push(match band {
+                    .filter(|(lo, hi)| hi - lo > GOLDEN_WALL_MM);
+                out.push(match wall {
                     Some((lo, hi)) => z.clamp(lo + self.dz_mm, hi + self.dz_mm) as f32,
-                    None => reference as f32,
+                    // Elsewhere the golden heights within the registration's tolerance of the point: the height
+                    // itself when one of them reaches it, else the nearest of them. (The samples are taken one by
+                    // one and the first that reaches it ends the search: the same value as clamping to their span.)
+                    None => {
+                        let d = GOLDEN_REGISTRATION_TOLERANCE_MM;
+                        let above = z >= reference;
+                        let mut nearest = reference;
+                        for (ox, oy) in [(d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)] {
+                            let Some(g) = bilinear_above(golden, gx + ox, gy + oy, belt_level_mm)
+                            else {
+                                continue;
+                            };
+                            let g = g + self.dz_mm;
+                            if (above && g >= z) || (!above && g <= z) {
+                                nearest = z;
+                                break;
+                            }
+                            nearest = if above {
+                                nearest.max(g)
+                            } else {
+                                nearest.min(g)
+                            };
+                        }
+                        nearest as f32
+                    }
                 });
             }
         }
