@@ -408,7 +408,8 @@ impl Registration {
     /// scan's own height wherever that lies within the span: there a cell's height depends on exactly where the
     /// wall is, which neither scan pins down to a cell (each codes a slightly different piece of a boss's rim; a
     /// cell compared across them is off by millimetres), so only a height outside everything the golden part shows
-    /// around the point is a deviation.
+    /// around the point is a deviation. Elsewhere the reference is the height itself when it lies within the golden
+    /// heights [`GOLDEN_REGISTRATION_TOLERANCE_MM`] around the point, and the nearest of them otherwise.
     pub fn heights(&self, scan: &RangeImage, golden: &RangeImage, belt_level_mm: f64) -> Vec<f32> {
         let mut out = Vec::with_capacity(scan.z.len());
         let map = self.mapper();
