@@ -400,6 +400,19 @@ impl Registration {
         }
     }
 
+    /// [`Registration::map`] straight to `golden`'s grid: the fractional cell indices ([`grid_coords`]) of the golden
+    /// point of the scan point at (u, v) mm from the registration's centre. One affine map, without the two
+    /// divisions per point that mapping and then converting costs (the per-cell loops of the golden inspection
+    /// and the registration's cost are made of these).
+    fn grid_mapper(&self, golden: &RangeImage) -> impl Fn(f64, f64) -> (f64, f64) + use<> {
+        let (c, s) = (self.theta_rad.cos(), self.theta_rad.sin());
+        let ([cx, cy], dx, dy) = (self.centre_mm, self.dx_mm, self.dy_mm);
+        let (rx, ry) = (1.0 / golden.spacing_mm[0], 1.0 / golden.spacing_mm[1]);
+        let (a, b, k) = (c * rx, -s * rx, (cx + dx - golden.origin_mm[0]) * rx);
+        let (d, e, l) = (-s * ry, -c * ry, (golden.origin_mm[1] - cy - dy) * ry);
+        move |u, v| (a * u + b * v + k, d * u + e * v + l)
+    }
+
     /// The golden heights (plus the height offset) at every cell of `scan`; NaN where the golden scan shows no
     /// part (outside it, in its holes) or has no data.
     ///
@@ -411,14 +424,24 @@ impl Registration {
     /// around the point is a deviation. Elsewhere the reference is the height itself when it lies within the golden
     /// heights [`GOLDEN_REGISTRATION_TOLERANCE_MM`] around the point, and the nearest of them otherwise.
     pub fn heights(&self, scan: &RangeImage, golden: &RangeImage, belt_level_mm: f64) -> Vec<f32> {
+        self.heights_with(scan, golden, &SpanMap::new(golden, belt_level_mm))
+    }
+
+    /// [`Registration::heights`] with the golden scan's span map made already.
+    fn heights_with(&self, scan: &RangeImage, golden: &RangeImage, spans: &SpanMap) -> Vec<f32> {
+        let floor = spans.floor_mm;
         let mut out = Vec::with_capacity(scan.z.len());
-        let map = self.mapper();
-        let spans = SpanMap::new(golden, belt_level_mm);
+        let to_grid = self.grid_mapper(golden);
+        let [cx, cy] = self.centre_mm;
+        // The tolerance band's four samples, in golden cells: (+d, 0), (-d, 0), (0, +d), (0, -d) mm.
+        let d = GOLDEN_REGISTRATION_TOLERANCE_MM;
+        let (di, dj) = (d / golden.spacing_mm[0], d / golden.spacing_mm[1]);
+        let band = [(di, 0.0), (-di, 0.0), (0.0, -dj), (0.0, dj)];
         for j in 0..scan.height {
             for i in 0..scan.width {
                 let (x, y) = cell_xy(scan, i, j);
-                let (gx, gy) = map(x, y);
-                let reference = match bilinear_above(golden, gx, gy, belt_level_mm) {
+                let (fi, fj) = to_grid(x - cx, y - cy);
+                let reference = match bilinear_cell(golden, fi, fj, floor) {
                     Some(z) => z + self.dz_mm,
                     None => {
                         out.push(f32::NAN);
@@ -431,7 +454,7 @@ impl Registration {
                     continue;
                 }
                 let wall = spans
-                    .at(golden, gx, gy)
+                    .at(golden, fi, fj)
                     .filter(|(lo, hi)| hi - lo > GOLDEN_WALL_MM);
                 out.push(match wall {
                     Some((lo, hi)) => z.clamp(lo + self.dz_mm, hi + self.dz_mm) as f32,
@@ -439,12 +462,10 @@ impl Registration {
                     // itself when one of them reaches it, else the nearest of them. (The samples are taken one by
                     // one and the first that reaches it ends the search: the same value as clamping to their span.)
                     None => {
-                        let d = GOLDEN_REGISTRATION_TOLERANCE_MM;
                         let above = z >= reference;
                         let mut nearest = reference;
-                        for (ox, oy) in [(d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)] {
-                            let Some(g) = bilinear_above(golden, gx + ox, gy + oy, belt_level_mm)
-                            else {
+                        for (oi, oj) in band {
+                            let Some(g) = bilinear_cell(golden, fi + oi, fj + oj, floor) else {
                                 continue;
                             };
                             let g = g + self.dz_mm;
@@ -479,11 +500,11 @@ pub const GOLDEN_WALL_MM: f64 = 1.0;
 /// this far around the point deviates by nothing; on flat surfaces the band is the noise's width.
 pub const GOLDEN_REGISTRATION_TOLERANCE_MM: f64 = 0.15;
 
-/// The least and greatest part height (above `floor_mm`) of the 4 x 4 cells around (x, y) — the bilinear
-/// neighbourhood and one cell beyond on each side; `None` when none holds one.
-fn local_span(range: &RangeImage, x: f64, y: f64, floor_mm: f64) -> Option<(f64, f64)> {
-    let fi = ((x - range.origin_mm[0]) / range.spacing_mm[0]).floor();
-    let fj = ((range.origin_mm[1] - y) / range.spacing_mm[1]).floor();
+/// The least and greatest part height (above `floor_mm`) of the 4 x 4 cells around the point at fractional cell
+/// indices (fi, fj) ([`grid_coords`]) — the bilinear neighbourhood and one cell beyond on each side; `None` when
+/// none holds one.
+fn local_span(range: &RangeImage, fi: f64, fj: f64, floor_mm: f64) -> Option<(f64, f64)> {
+    let (fi, fj) = (fi.floor(), fj.floor());
     if !(fi.is_finite() && fj.is_finite()) {
         return None;
     }
@@ -541,12 +562,10 @@ impl SpanMap {
         Self { lo, hi, floor_mm }
     }
 
-    /// The span around (x, y), when (x, y) lies in a cell of `range` (the one the map was made of).
-    fn at(&self, range: &RangeImage, x: f64, y: f64) -> Option<(f64, f64)> {
-        let fi = (x - range.origin_mm[0]) / range.spacing_mm[0];
-        let fj = (range.origin_mm[1] - y) / range.spacing_mm[1];
+    /// The span around fractional cell indices (fi, fj) of `range` (the one the map was made of).
+    fn at(&self, range: &RangeImage, fi: f64, fj: f64) -> Option<(f64, f64)> {
         if !(fi >= 0.0 && fj >= 0.0 && fi < range.width as f64 && fj < range.height as f64) {
-            return local_span(range, x, y, self.floor_mm);
+            return local_span(range, fi, fj, self.floor_mm);
         }
         // Truncation is the floor here.
         let k = fj as usize * range.width + fi as usize;
@@ -563,8 +582,23 @@ pub fn bilinear(range: &RangeImage, x: f64, y: f64) -> Option<f64> {
 /// Bilinear height at (x, y): `None` unless all four surrounding cells hold a height above `floor_mm` (the part,
 /// not the belt: a value interpolated between the part and the belt is neither).
 pub fn bilinear_above(range: &RangeImage, x: f64, y: f64, floor_mm: f64) -> Option<f64> {
-    let fi = (x - range.origin_mm[0]) / range.spacing_mm[0];
-    let fj = (range.origin_mm[1] - y) / range.spacing_mm[1];
+    let (fi, fj) = grid_coords(range, x, y);
+    bilinear_cell(range, fi, fj, floor_mm)
+}
+
+/// Fractional cell indices (i, j) of part point (x, y) on `range`'s grid (cell centres at integers; [`cell_xy`]
+/// inverted).
+#[inline]
+fn grid_coords(range: &RangeImage, x: f64, y: f64) -> (f64, f64) {
+    (
+        (x - range.origin_mm[0]) / range.spacing_mm[0],
+        (range.origin_mm[1] - y) / range.spacing_mm[1],
+    )
+}
+
+/// [`bilinear_above`] at fractional cell indices.
+#[inline]
+fn bilinear_cell(range: &RangeImage, fi: f64, fj: f64, floor_mm: f64) -> Option<f64> {
     // (The conversions truncate, which for these non-negative values is the floor, without a libm call.)
     if !(fi >= 0.0 && fj >= 0.0 && fi + 1.0 < range.width as f64 && fj + 1.0 < range.height as f64)
     {
@@ -606,7 +640,7 @@ impl Default for RegisterParams {
     }
 }
 
-/// Robust cost of a registration over sample points (x, y, z): the median absolute height difference after the
+/// Robust cost of a registration over sample points (u, v, z), (u, v) mm from the registration's centre: the median absolute height difference after the
 /// median offset, with points off the golden part counted as 1 mm off. Returns (cost, dz, overlap).
 fn registration_cost(
     golden: &RangeImage,
@@ -617,10 +651,10 @@ fn registration_cost(
 ) -> (f64, f64, f64) {
     scratch.clear();
     let mut off = 0usize;
-    let map = r.mapper();
-    for &(x, y, z) in sample {
-        let (gx, gy) = map(x, y);
-        match bilinear_above(golden, gx, gy, belt) {
+    let to_grid = r.grid_mapper(golden);
+    for &(u, v, z) in sample {
+        let (fi, fj) = to_grid(u, v);
+        match bilinear_cell(golden, fi, fj, belt) {
             Some(g) => scratch.push(z - g),
             None => off += 1,
         }
@@ -681,13 +715,17 @@ pub fn register(
             ),
         });
     }
+    // The samples as offsets from the centre of rotation, which every candidate shares.
+    let from_centre = |(x, y, z)| (x - centre[0], y - centre[1], z);
     let coarse: Vec<(f64, f64, f64)> = part_cells(scan, belt)
         .step_by((count / 1500).max(1))
+        .map(from_centre)
         .collect();
     // 10,000 cells for the refinement (was 40,000: the same registration to within 0.03 mm on the demo, which the
     // golden reference's tolerance band absorbs, in half the time; `cargo bench --bench inspect`).
     let fine: Vec<(f64, f64, f64)> = part_cells(scan, belt)
         .step_by((count / 10_000).max(1))
+        .map(from_centre)
         .collect();
     let mut scratch = Vec::new();
     let mut best = Registration {
@@ -1250,8 +1288,9 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             let x = ((rng >> 11) % 10_000) as f64 / 10_000.0 * 9.0 - 4.5;
             let y = ((rng >> 35) % 10_000) as f64 / 10_000.0 * 6.0 - 3.0;
-            let want = local_span(&r, x, y, 0.5).map(|(a, b)| (a as f32, b as f32));
-            let got = spans.at(&r, x, y).map(|(a, b)| (a as f32, b as f32));
+            let (fi, fj) = grid_coords(&r, x, y);
+            let want = local_span(&r, fi, fj, 0.5).map(|(a, b)| (a as f32, b as f32));
+            let got = spans.at(&r, fi, fj).map(|(a, b)| (a as f32, b as f32));
             assert_eq!(got, want, "at ({x}, {y})");
         }
     }
