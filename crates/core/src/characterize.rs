@@ -570,26 +570,45 @@ struct SpanMap {
 impl SpanMap {
     fn new(range: &RangeImage, floor_mm: f64) -> Self {
         let (w, h) = (range.width, range.height);
-        // Along rows: cells i-1..=i+2; then along columns: rows j-1..=j+2 of those.
-        let window = |k: usize, n: usize| k.saturating_sub(1)..(k + 3).min(n);
+        // Along rows: cells i-1..=i+2; then along columns: rows j-1..=j+2 of those. Cells without a part height
+        // (NaN, the belt) enter as +inf to the minimum and -inf to the maximum, so that both are plain comparisons
+        // (which vectorise; `f32::min` with its NaN rule does not).
+        let (mn, mx) = (
+            |a: f32, b: f32| if a < b { a } else { b },
+            |a: f32, b: f32| if a > b { a } else { b },
+        );
         let (mut row_lo, mut row_hi) = (vec![f32::INFINITY; w * h], vec![f32::NEG_INFINITY; w * h]);
+        // One row, padded with one empty cell before it and two after it.
+        let (mut pad_lo, mut pad_hi) = (vec![f32::INFINITY; w + 3], vec![f32::NEG_INFINITY; w + 3]);
         for j in 0..h {
-            let line = &range.z[j * w..(j + 1) * w];
-            for i in 0..w {
-                for &v in &line[window(i, w)] {
-                    if f64::from(v) > floor_mm {
-                        row_lo[j * w + i] = row_lo[j * w + i].min(v);
-                        row_hi[j * w + i] = row_hi[j * w + i].max(v);
-                    }
-                }
+            for (i, &v) in range.z[j * w..(j + 1) * w].iter().enumerate() {
+                let part = f64::from(v) > floor_mm;
+                pad_lo[i + 1] = if part { v } else { f32::INFINITY };
+                pad_hi[i + 1] = if part { v } else { f32::NEG_INFINITY };
+            }
+            let (out_lo, out_hi) = (
+                &mut row_lo[j * w..(j + 1) * w],
+                &mut row_hi[j * w..(j + 1) * w],
+            );
+            for (o, q) in out_lo.iter_mut().zip(pad_lo.windows(4)) {
+                *o = mn(mn(q[0], q[1]), mn(q[2], q[3]));
+            }
+            for (o, q) in out_hi.iter_mut().zip(pad_hi.windows(4)) {
+                *o = mx(mx(q[0], q[1]), mx(q[2], q[3]));
             }
         }
+        let window = |k: usize, n: usize| k.saturating_sub(1)..(k + 3).min(n);
         let (mut lo, mut hi) = (vec![f32::INFINITY; w * h], vec![f32::NEG_INFINITY; w * h]);
         for j in 0..h {
+            let (out_lo, out_hi) = (&mut lo[j * w..(j + 1) * w], &mut hi[j * w..(j + 1) * w]);
             for jj in window(j, h) {
-                for i in 0..w {
-                    lo[j * w + i] = lo[j * w + i].min(row_lo[jj * w + i]);
-                    hi[j * w + i] = hi[j * w + i].max(row_hi[jj * w + i]);
+                let (src_lo, src_hi) =
+                    (&row_lo[jj * w..(jj + 1) * w], &row_hi[jj * w..(jj + 1) * w]);
+                for (o, &v) in out_lo.iter_mut().zip(src_lo) {
+                    *o = mn(*o, v);
+                }
+                for (o, &v) in out_hi.iter_mut().zip(src_hi) {
+                    *o = mx(*o, v);
                 }
             }
         }
