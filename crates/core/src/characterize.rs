@@ -416,15 +416,26 @@ impl Registration {
     /// The golden heights (plus the height offset) at every cell of `scan`; NaN where the golden scan shows no
     /// part (outside it, in its holes) or has no data.
     ///
-    /// On a wall of the golden part — where its heights in the 4 x 4 golden cells around the point (the bilinear
-    /// neighbourhood and one cell beyond on each side) span more than [`GOLDEN_WALL_MM`] — the reference is the
-    /// scan's own height wherever that lies within the span: there a cell's height depends on exactly where the
-    /// wall is, which neither scan pins down to a cell (each codes a slightly different piece of a boss's rim; a
-    /// cell compared across them is off by millimetres), so only a height outside everything the golden part shows
-    /// around the point is a deviation. Elsewhere the reference is the height itself when it lies within the golden
-    /// heights [`GOLDEN_REGISTRATION_TOLERANCE_MM`] around the point, and the nearest of them otherwise.
-    pub fn heights(&self, scan: &RangeImage, golden: &RangeImage, belt_level_mm: f64) -> Vec<f32> {
-        self.heights_with(scan, golden, &SpanMap::new(golden, belt_level_mm))
+    /// On a wall of the golden part — where its heights around the point span more than [`GOLDEN_WALL_MM`] — the
+    /// reference is the scan's own height wherever that lies within the span: there a cell's height depends on
+    /// exactly where the wall is, which neither scan pins down to a cell (each codes a slightly different piece of a
+    /// boss's rim; a cell compared across them is off by millimetres), so only a height outside everything the
+    /// golden part shows around the point is a deviation. "Around" is the bilinear neighbourhood and one cell beyond
+    /// it along y (the stripes' direction, sampled every image row), and along x (the conveyor's travel) one
+    /// `travel_step_mm` beyond it ([`wall_reach_cells`]): the last sample before a wall lies anywhere up to a step
+    /// short of it, so two scans can put the same wall a step apart in the grid. (Traced on the demo part rendered
+    /// with seed 3: its boss's rim 0.4 mm further in than the golden scan's, a 2.4 mm² "anomaly" 3.7 mm deep with a
+    /// one-cell reach.) Elsewhere the reference is the height itself when it lies within the golden heights
+    /// [`GOLDEN_REGISTRATION_TOLERANCE_MM`] around the point, and the nearest of them otherwise.
+    pub fn heights(
+        &self,
+        scan: &RangeImage,
+        golden: &RangeImage,
+        belt_level_mm: f64,
+        travel_step_mm: Option<f64>,
+    ) -> Vec<f32> {
+        let reach = wall_reach_cells(golden, travel_step_mm);
+        self.heights_with(scan, golden, &SpanMap::new(golden, belt_level_mm, reach))
     }
 
     /// [`Registration::heights`] with the golden scan's span map made already.
@@ -524,8 +535,21 @@ impl Registration {
 
 /// Least height span of a golden scan around a point that makes it a wall there ([`Registration::heights`]), mm. A
 /// dent or bump the inspection measures (slopes up to about 0.3) rises a few tenths of a millimetre over the four
-/// cells the span is taken over (0.9 mm at the default 0.22 mm cell); a boss's or a step's side spans millimetres.
+/// cells the span is taken over along y (0.9 mm at the default 0.22 mm cell; along x it is taken over a travel step
+/// more on each side, where such a slope can reach 1 mm only on the steepest small bumps, whose tops stay outside
+/// their own span); a boss's or a step's side spans millimetres.
 pub const GOLDEN_WALL_MM: f64 = 1.0;
+
+/// Cells beyond the bilinear neighbourhood along x that the golden wall span covers ([`Registration::heights`]): a
+/// travel step's worth (rounded up), at least one.
+pub fn wall_reach_cells(golden: &RangeImage, travel_step_mm: Option<f64>) -> usize {
+    let cells = travel_step_mm.map_or(1.0, |s| (s / golden.spacing_mm[0]).ceil());
+    if cells.is_finite() {
+        cells.clamp(1.0, 64.0) as usize
+    } else {
+        1
+    }
+}
 
 /// How far (mm) from where the registration maps a point the golden heights still count as its reference
 /// ([`Registration::heights`]): a part's outline pins the registration down to a fraction of a cell, and two scans
@@ -534,17 +558,24 @@ pub const GOLDEN_WALL_MM: f64 = 1.0;
 /// this far around the point deviates by nothing; on flat surfaces the band is the noise's width.
 pub const GOLDEN_REGISTRATION_TOLERANCE_MM: f64 = 0.15;
 
-/// The least and greatest part height (above `floor_mm`) of the 4 x 4 cells around the point at fractional cell
-/// indices (fi, fj) ([`grid_coords`]) — the bilinear neighbourhood and one cell beyond on each side; `None` when
-/// none holds one.
-fn local_span(range: &RangeImage, fi: f64, fj: f64, floor_mm: f64) -> Option<(f64, f64)> {
+/// The least and greatest part height (above `floor_mm`) of the cells around the point at fractional cell indices
+/// (fi, fj) ([`grid_coords`]) — the bilinear neighbourhood and `reach` cells beyond it along x, one along y (4 x 4
+/// cells with a reach of 1); `None` when none holds one.
+fn local_span(
+    range: &RangeImage,
+    fi: f64,
+    fj: f64,
+    floor_mm: f64,
+    reach: usize,
+) -> Option<(f64, f64)> {
     let (fi, fj) = (fi.floor(), fj.floor());
     if !(fi.is_finite() && fj.is_finite()) {
         return None;
     }
+    let r = reach as i32;
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for dj in -1..=2 {
-        for di in -1..=2 {
+        for di in -r..=1 + r {
             let (i, j) = (fi + f64::from(di), fj + f64::from(dj));
             if i < 0.0 || j < 0.0 || i >= range.width as f64 || j >= range.height as f64 {
                 continue;
@@ -559,18 +590,43 @@ fn local_span(range: &RangeImage, fi: f64, fj: f64, floor_mm: f64) -> Option<(f6
     (lo <= hi).then_some((lo, hi))
 }
 
-/// [`local_span`] of every cell of a range image, computed once (a 4 x 4 minimum and maximum, separably): the
-/// span around (x, y) is the entry of the cell that holds it.
+/// `out[i]` = `f` over `vals[i..i + len]` (f a minimum or maximum), by doubling: after the passes with widths 1, 2,
+/// 4, ... up to `len`, entry i holds `f` over `vals[i..i + width]`, and two such windows cover `len`. Each pass is
+/// one comparison per cell over whole slices (vectorised); `a` and `b` are scratch.
+fn sliding(
+    vals: &[f32],
+    len: usize,
+    f: impl Fn(f32, f32) -> f32 + Copy,
+    (a, b): (&mut Vec<f32>, &mut Vec<f32>),
+    out: &mut [f32],
+) {
+    a.clear();
+    a.extend_from_slice(vals);
+    let mut width = 1;
+    while 2 * width <= len {
+        b.clear();
+        b.extend(a.iter().zip(&a[width..]).map(|(&x, &y)| f(x, y)));
+        std::mem::swap(a, b);
+        width *= 2;
+    }
+    for ((o, &x), &y) in out.iter_mut().zip(a.iter()).zip(&a[len - width..]) {
+        *o = f(x, y);
+    }
+}
+
+/// [`local_span`] of every cell of a range image, computed once (a minimum and maximum over the window, separably):
+/// the span around (x, y) is the entry of the cell that holds it.
 struct SpanMap {
     lo: Vec<f32>,
     hi: Vec<f32>,
     floor_mm: f64,
+    reach: usize,
 }
 
 impl SpanMap {
-    fn new(range: &RangeImage, floor_mm: f64) -> Self {
+    fn new(range: &RangeImage, floor_mm: f64, reach: usize) -> Self {
         let (w, h) = (range.width, range.height);
-        // Along rows: cells i-1..=i+2; then along columns: rows j-1..=j+2 of those. Cells without a part height
+        // Along rows: cells i-reach..=i+1+reach; then along columns: rows j-1..=j+2 of those. Cells without a part height
         // (NaN, the belt) enter as +inf to the minimum and -inf to the maximum, so that both are plain comparisons
         // (which vectorise; `f32::min` with its NaN rule does not).
         let (mn, mx) = (
@@ -578,24 +634,25 @@ impl SpanMap {
             |a: f32, b: f32| if a > b { a } else { b },
         );
         let (mut row_lo, mut row_hi) = (vec![f32::INFINITY; w * h], vec![f32::NEG_INFINITY; w * h]);
-        // One row, padded with one empty cell before it and two after it.
-        let (mut pad_lo, mut pad_hi) = (vec![f32::INFINITY; w + 3], vec![f32::NEG_INFINITY; w + 3]);
+        // One row, padded with `reach` empty cells before it and 1 + `reach` after it.
+        let len = 2 * reach + 2;
+        let (mut pad_lo, mut pad_hi) = (
+            vec![f32::INFINITY; w + len - 1],
+            vec![f32::NEG_INFINITY; w + len - 1],
+        );
+        let mut scratch = (Vec::new(), Vec::new());
         for j in 0..h {
             for (i, &v) in range.z[j * w..(j + 1) * w].iter().enumerate() {
                 let part = f64::from(v) > floor_mm;
-                pad_lo[i + 1] = if part { v } else { f32::INFINITY };
-                pad_hi[i + 1] = if part { v } else { f32::NEG_INFINITY };
+                pad_lo[i + reach] = if part { v } else { f32::INFINITY };
+                pad_hi[i + reach] = if part { v } else { f32::NEG_INFINITY };
             }
             let (out_lo, out_hi) = (
                 &mut row_lo[j * w..(j + 1) * w],
                 &mut row_hi[j * w..(j + 1) * w],
             );
-            for (o, q) in out_lo.iter_mut().zip(pad_lo.windows(4)) {
-                *o = mn(mn(q[0], q[1]), mn(q[2], q[3]));
-            }
-            for (o, q) in out_hi.iter_mut().zip(pad_hi.windows(4)) {
-                *o = mx(mx(q[0], q[1]), mx(q[2], q[3]));
-            }
+            sliding(&pad_lo, len, mn, (&mut scratch.0, &mut scratch.1), out_lo);
+            sliding(&pad_hi, len, mx, (&mut scratch.0, &mut scratch.1), out_hi);
         }
         let window = |k: usize, n: usize| k.saturating_sub(1)..(k + 3).min(n);
         let (mut lo, mut hi) = (vec![f32::INFINITY; w * h], vec![f32::NEG_INFINITY; w * h]);
@@ -612,13 +669,18 @@ impl SpanMap {
                 }
             }
         }
-        Self { lo, hi, floor_mm }
+        Self {
+            lo,
+            hi,
+            floor_mm,
+            reach,
+        }
     }
 
     /// The span around fractional cell indices (fi, fj) of `range` (the one the map was made of).
     fn at(&self, range: &RangeImage, fi: f64, fj: f64) -> Option<(f64, f64)> {
         if !(fi >= 0.0 && fj >= 0.0 && fi < range.width as f64 && fj < range.height as f64) {
-            return local_span(range, fi, fj, self.floor_mm);
+            return local_span(range, fi, fj, self.floor_mm, self.reach);
         }
         // Truncation is the floor here.
         let k = fj as usize * range.width + fi as usize;
@@ -925,11 +987,13 @@ pub enum ReferenceInfo {
     Golden(Registration),
 }
 
-/// The reference height of every cell of `range`, from `source`.
+/// The reference height of every cell of `range`, from `source`; `travel_step_mm` (when known) sets how far along x
+/// a golden scan's walls reach ([`Registration::heights`]).
 pub fn reference_heights(
     range: &RangeImage,
     source: ReferenceSource<'_>,
     params: &CharacterizeParams,
+    travel_step_mm: Option<f64>,
 ) -> Result<(Vec<f32>, ReferenceInfo), CoreError> {
     match source {
         ReferenceSource::Fit(shape) => {
@@ -950,7 +1014,7 @@ pub fn reference_heights(
                 },
             )?;
             Ok((
-                reg.heights(range, golden, params.belt_level_mm),
+                reg.heights(range, golden, params.belt_level_mm, travel_step_mm),
                 ReferenceInfo::Golden(reg),
             ))
         }
@@ -1338,6 +1402,40 @@ mod tests {
     };
 
     #[test]
+    fn a_golden_wall_reaches_a_travel_step_along_x() {
+        // A step from 10 to 17 mm at x = 0 in the golden scan; the scan sees it 0.5 mm further along x (its last
+        // sample before the step fell a whole 0.5 mm travel step short of it), and has a 0.2 mm dent 3 mm away.
+        let golden = image(100, 60, |x, _| if x > 0.0 { 17.0 } else { 10.0 });
+        let scan = image(100, 60, |x, _| {
+            if x > 0.5 {
+                17.0
+            } else if (x + 3.0).abs() < 0.5 {
+                9.8
+            } else {
+                10.0
+            }
+        });
+        let worst = |step: Option<f64>| {
+            let reference = IDENTITY.heights(&scan, &golden, 0.5, step);
+            let mut worst = 0.0f64;
+            for (k, (&z, &r)) in scan.z.iter().zip(&reference).enumerate() {
+                let x = cell_xy(&scan, k % scan.width, k / scan.width).0;
+                if x.abs() < 1.0 && r.is_finite() {
+                    worst = worst.max(f64::from((z - r).abs()));
+                }
+            }
+            let dent = scan.width * 30 + 35; // x = -3
+            (worst, f64::from(scan.z[dent] - reference[dent]))
+        };
+        let (one_cell, dent) = worst(None);
+        assert!(one_cell > 6.0, "{one_cell}: the wall a cell's reach misses");
+        assert!((dent + 0.2).abs() < 1e-3, "{dent}");
+        let (a_step, dent) = worst(Some(0.5));
+        assert!(a_step < 1e-3, "{a_step}");
+        assert!((dent + 0.2).abs() < 1e-3, "{dent}");
+    }
+
+    #[test]
     fn a_golden_wall_is_compared_within_its_span_and_flat_ground_as_it_is() {
         // A boss 8 mm high on a 10 mm plate; the scan sees it 0.1 mm (half a cell) further along x, and has a dent
         // 0.4 mm deep on the plate away from it.
@@ -1347,7 +1445,7 @@ mod tests {
             let d = (x - 6.5).hypot(y + 6.5);
             boss(x - 0.1, y) - if d < 1.5 { 0.4 * (1.0 - d / 1.5) } else { 0.0 }
         });
-        let reference = IDENTITY.heights(&scan, &golden, 0.5);
+        let reference = IDENTITY.heights(&scan, &golden, 0.5, None);
         let (mut plain_max, mut wall_max) = (0.0f64, 0.0f64);
         for j in 0..scan.height {
             for i in 0..scan.width {
@@ -1391,19 +1489,25 @@ mod tests {
                 10.0 + (3.0 * x).sin() + if y > 1.0 { 2.0 } else { 0.0 }
             }
         });
-        let spans = SpanMap::new(&r, 0.5);
-        let mut rng = 12345u64;
-        for _ in 0..2000 {
-            rng = rng
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let x = ((rng >> 11) % 10_000) as f64 / 10_000.0 * 9.0 - 4.5;
-            let y = ((rng >> 35) % 10_000) as f64 / 10_000.0 * 6.0 - 3.0;
-            let (fi, fj) = grid_coords(&r, x, y);
-            let want = local_span(&r, fi, fj, 0.5).map(|(a, b)| (a as f32, b as f32));
-            let got = spans.at(&r, fi, fj).map(|(a, b)| (a as f32, b as f32));
-            assert_eq!(got, want, "at ({x}, {y})");
+        // The usual window and wider ones (three cells along x: a 0.5 mm travel step on a 0.2 mm grid).
+        for reach in [1, 2, 3, 5] {
+            let spans = SpanMap::new(&r, 0.5, reach);
+            let mut rng = 12345u64;
+            for _ in 0..2000 {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let x = ((rng >> 11) % 10_000) as f64 / 10_000.0 * 9.0 - 4.5;
+                let y = ((rng >> 35) % 10_000) as f64 / 10_000.0 * 6.0 - 3.0;
+                let (fi, fj) = grid_coords(&r, x, y);
+                let want = local_span(&r, fi, fj, 0.5, reach).map(|(a, b)| (a as f32, b as f32));
+                let got = spans.at(&r, fi, fj).map(|(a, b)| (a as f32, b as f32));
+                assert_eq!(got, want, "reach {reach} at ({x}, {y})");
+            }
         }
+        assert_eq!(wall_reach_cells(&r, Some(0.5)), 3);
+        assert_eq!(wall_reach_cells(&r, None), 1);
+        assert_eq!(wall_reach_cells(&r, Some(0.1)), 1);
     }
 
     #[test]
@@ -1423,7 +1527,7 @@ mod tests {
             let d = (x - 5.0).hypot(y);
             part(x - 0.1) - if d < 2.0 { 0.2 * (1.0 - d / 2.0) } else { 0.0 }
         });
-        let reference = IDENTITY.heights(&scan, &golden, 0.5);
+        let reference = IDENTITY.heights(&scan, &golden, 0.5, None);
         let mut chamfer_max = 0.0f64;
         let mut dent_min = 0.0f64;
         for j in 0..scan.height {

@@ -1564,7 +1564,8 @@ pub fn inspect(
         Some(g) => ReferenceSource::Golden(g),
         None => source,
     };
-    let (heights, reference) = reference_heights(&cleaned, source, characterize)?;
+    let (heights, reference) =
+        reference_heights(&cleaned, source, characterize, params.travel_step_mm)?;
     let maps = surface_maps(&cleaned, heights, characterize)?;
     let detection = detect(&cleaned, &maps, rules, params)?;
     Ok(Inspection {
