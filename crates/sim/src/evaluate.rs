@@ -35,6 +35,18 @@ pub struct Score {
 impl Score {
     /// Adds one frame: `truth` and the extracted `(line, x)` positions.
     pub fn add(&mut self, truth: &[TruthPoint], extracted: &[(u32, f64)]) {
+        self.add_where(truth, extracted, |_, _| true);
+    }
+
+    /// [`Score::add`] counting only the truth points and extracted points at the `(line, x)` positions `keep`
+    /// accepts, each still matched against all of the other side (a kept truth point found by any extracted point is
+    /// found; a kept extracted point near any truth point is not false).
+    pub fn add_where(
+        &mut self,
+        truth: &[TruthPoint],
+        extracted: &[(u32, f64)],
+        keep: impl Fn(u32, f64) -> bool,
+    ) {
         let mut by_row: std::collections::HashMap<u32, Vec<f64>> = std::collections::HashMap::new();
         for &(r, x) in extracted {
             by_row.entry(r).or_default().push(x);
@@ -44,9 +56,11 @@ impl Score {
         for t in truth {
             truth_by_row.entry(t.row).or_default().push(t.u);
         }
-        self.truth += truth.len();
-        self.extracted += extracted.len();
         for t in truth {
+            if !keep(t.row, t.u) {
+                continue;
+            }
+            self.truth += 1;
             let nearest = by_row.get(&t.row).and_then(|xs| {
                 xs.iter()
                     .map(|x| x - t.u)
@@ -59,6 +73,10 @@ impl Score {
             }
         }
         for &(r, x) in extracted {
+            if !keep(r, x) {
+                continue;
+            }
+            self.extracted += 1;
             let matched = truth_by_row
                 .get(&r)
                 .is_some_and(|us| us.iter().any(|u| (x - u).abs() <= MATCH_RADIUS_PX));
@@ -142,6 +160,29 @@ mod tests {
         );
         assert!(s.bias().abs() < 1e-12);
         assert!((s.rms() - 0.1).abs() < 1e-12);
+        // Row 0 left out: only row 1's truth point and extracted point count.
+        let mut s = Score::default();
+        s.add_where(
+            &[t(0, 10.0), t(0, 20.0), t(1, 10.0)],
+            &[(0, 10.1), (0, 25.0), (1, 9.9)],
+            |row, _| row == 1,
+        );
+        assert_eq!(
+            (s.truth, s.found, s.extracted, s.false_points),
+            (1, 1, 1, 0)
+        );
+        // Kept points are matched against all of the other side: the truth point at 20 is found by a point that
+        // is not kept itself, and the kept point at 10.1 matches a truth point that is not kept.
+        let mut s = Score::default();
+        s.add_where(
+            &[t(0, 10.0), t(0, 20.0)],
+            &[(0, 10.1), (0, 19.8)],
+            |_, x| x == 20.0 || x == 10.1,
+        );
+        assert_eq!(
+            (s.truth, s.found, s.extracted, s.false_points),
+            (1, 1, 1, 0)
+        );
     }
 
     #[test]

@@ -24,7 +24,7 @@ pub mod pipeline;
 pub mod render;
 pub mod scene;
 
-pub use render::{Frame, RenderOptions, Simulator, TruthPoint};
+pub use render::{EdgeMap, Frame, RenderOptions, Simulator, TruthPoint};
 pub use scene::{DefectTruth, Feature, Scene};
 
 use thiserror::Error;

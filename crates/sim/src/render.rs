@@ -115,6 +115,41 @@ pub struct Frame {
     pub truth: Vec<TruthPoint>,
 }
 
+/// Height difference between neighbouring pixels' surface points that makes an edge ([`Simulator::edge_map`]), mm.
+pub const EDGE_JUMP_MM: f64 = 0.5;
+
+/// Pixels on each side of a stripe point within which an edge makes it an edge point ([`EdgeMap::near`]): the
+/// stripe's light spreads about three sigmas of its width (1-1.5 px on the demo) plus the optics' blur.
+pub const EDGE_REACH_PX: usize = 5;
+
+/// The edges of one frame's visible surface ([`Simulator::edge_map`]).
+#[derive(Debug, Clone)]
+pub struct EdgeMap {
+    width: usize,
+    height: usize,
+    /// Per pixel: the surface breaks between it and its left neighbour.
+    marks: Vec<bool>,
+}
+
+impl EdgeMap {
+    /// Whether the surface breaks within [`EDGE_REACH_PX`] pixels of column `u` on image row `row` (rows outside
+    /// the image: no).
+    pub fn near(&self, row: u32, u: f64) -> bool {
+        let v = row as usize;
+        if v >= self.height || !u.is_finite() {
+            return false;
+        }
+        let c = u.round().clamp(0.0, (self.width - 1) as f64) as usize;
+        let (a, b) = (
+            c.saturating_sub(EDGE_REACH_PX - 1),
+            (c + EDGE_REACH_PX).min(self.width - 1),
+        );
+        self.marks[v * self.width + a..=v * self.width + b]
+            .iter()
+            .any(|&m| m)
+    }
+}
+
 /// A ready-to-render sensor and scene.
 #[derive(Debug, Clone)]
 pub struct Simulator {
@@ -419,6 +454,35 @@ impl Simulator {
             travel_mm,
             image,
             truth,
+        }
+    }
+
+    /// Where in a frame (the part moved by `travel_mm`) the visible surface breaks: a pixel is marked when the
+    /// height seen through it differs from its left neighbour's by more than [`EDGE_JUMP_MM`] (a wall, an occluding
+    /// edge, a hole's rim: steeper than about 70 degrees at the paper's scale of 0.17 mm a pixel), or when one of the
+    /// two surface points is lit by the projector and the other is not (a laser shadow's boundary). A stripe whose
+    /// light falls across such a pixel has no single centre on one surface: the benchmarks score points there apart
+    /// ([`EdgeMap::near`]).
+    pub fn edge_map(&self, travel_mm: f64) -> EdgeMap {
+        let cam = &self.sensor.camera;
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let mut marks = vec![false; w * h];
+        for v in 0..h {
+            let mut prev: Option<(f64, bool)> = None;
+            for u in 0..w {
+                let (xn, yn) = self.rays[v * w + u];
+                let z = self.cast(xn, yn, travel_mm);
+                let lit = self.lit(&self.world_point(xn, yn, z), travel_mm);
+                if let Some((pz, plit)) = prev {
+                    marks[v * w + u] = (z - pz).abs() > EDGE_JUMP_MM || lit != plit;
+                }
+                prev = Some((z, lit));
+            }
+        }
+        EdgeMap {
+            width: w,
+            height: h,
+            marks,
         }
     }
 
