@@ -470,9 +470,9 @@ fn crb(r: &Rendered) -> f64 {
     (sum / n.max(1) as f64).sqrt()
 }
 
-/// The demo's figures away from the edges of its visible surface (walls, rims, laser shadows; `Simulator::edge_map`):
-/// where a stripe's light falls across such an edge it has no single centre on one surface, and every
-/// intensity-based estimator places it between the two.
+/// The demo's figures away from the edges of its visible surface (walls, rims, laser shadows, albedo edges;
+/// `Simulator::edge_map`): where a stripe's light falls across such an edge it has no single centre on one surface
+/// (or its intensity centre is not the sheet's), and every intensity-based estimator places it off the sheet.
 fn print_clean(
     name: &str,
     methods: &[Method],
@@ -495,7 +495,7 @@ fn print_clean(
     let share = |part: usize, whole: usize| 100.0 * (1.0 - part as f64 / whole.max(1) as f64);
     let met = c.detection_rate() >= 0.995 && c.false_rate() <= 0.001;
     println!(
-        "- {name}, away from edges (no break of the visible surface or laser-shadow boundary within {} px; {:.1}% of the \
+        "- {name}, away from edges (no height break, laser-shadow boundary or albedo edge within {} px; {:.1}% of the \
          truth points and {:.1}% of {}'s points lie at one): highest detection {} {:.2}% with {:.3}% false points: {}",
         stripe3d_sim::render::EDGE_REACH_PX,
         share(c.truth, all.truth),

@@ -118,6 +118,10 @@ pub struct Frame {
 /// Height difference between neighbouring pixels' surface points that makes an edge ([`Simulator::edge_map`]), mm.
 pub const EDGE_JUMP_MM: f64 = 0.5;
 
+/// Ratio of neighbouring pixels' reflectances that makes an edge ([`Simulator::edge_map`]): across an albedo edge
+/// a stripe's intensity centre leaves the sheet's centre (by up to a pixel on the demo's dark patch).
+pub const EDGE_ALBEDO_RATIO: f64 = 1.25;
+
 /// Pixels on each side of a stripe point within which an edge makes it an edge point ([`EdgeMap::near`]): the
 /// stripe's light spreads about three sigmas of its width (1-1.5 px on the demo) plus the optics' blur.
 pub const EDGE_REACH_PX: usize = 5;
@@ -459,24 +463,30 @@ impl Simulator {
 
     /// Where in a frame (the part moved by `travel_mm`) the visible surface breaks: a pixel is marked when the
     /// height seen through it differs from its left neighbour's by more than [`EDGE_JUMP_MM`] (a wall, an occluding
-    /// edge, a hole's rim: steeper than about 70 degrees at the paper's scale of 0.17 mm a pixel), or when one of the
-    /// two surface points is lit by the projector and the other is not (a laser shadow's boundary). A stripe whose
-    /// light falls across such a pixel has no single centre on one surface: the benchmarks score points there apart
-    /// ([`EdgeMap::near`]).
+    /// edge, a hole's rim: steeper than about 70 degrees at the paper's scale of 0.17 mm a pixel), when one of the
+    /// two surface points is lit by the projector and the other is not (a laser shadow's boundary), or when their
+    /// reflectances differ by more than [`EDGE_ALBEDO_RATIO`] (an albedo edge). A stripe whose light falls across
+    /// such a pixel has no single centre on one surface, or an intensity centre off the sheet's: the benchmarks score
+    /// points there apart ([`EdgeMap::near`]).
     pub fn edge_map(&self, travel_mm: f64) -> EdgeMap {
         let cam = &self.sensor.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
         let mut marks = vec![false; w * h];
         for v in 0..h {
-            let mut prev: Option<(f64, bool)> = None;
+            let mut prev: Option<(f64, bool, f64)> = None;
             for u in 0..w {
                 let (xn, yn) = self.rays[v * w + u];
                 let z = self.cast(xn, yn, travel_mm);
-                let lit = self.lit(&self.world_point(xn, yn, z), travel_mm);
-                if let Some((pz, plit)) = prev {
-                    marks[v * w + u] = (z - pz).abs() > EDGE_JUMP_MM || lit != plit;
+                let p = self.world_point(xn, yn, z);
+                let lit = self.lit(&p, travel_mm);
+                let albedo = self.field.surface_at(p.x - travel_mm, p.y).albedo;
+                if let Some((pz, plit, palbedo)) = prev {
+                    let (lo, hi) = (albedo.min(palbedo), albedo.max(palbedo));
+                    marks[v * w + u] = (z - pz).abs() > EDGE_JUMP_MM
+                        || lit != plit
+                        || hi > EDGE_ALBEDO_RATIO * lo;
                 }
-                prev = Some((z, lit));
+                prev = Some((z, lit, albedo));
             }
         }
         EdgeMap {

@@ -120,8 +120,8 @@ fn demo_scene_with_ghosts_does_not_regress() {
         s.detection_rate()
     );
     assert!(s.false_rate() < 0.06, "false points {}", s.false_rate());
-    // Away from the edges of the visible surface (walls, rims, laser shadows) the misses and most false points are
-    // gone: what is left there are the glossy patch's ghost stripes.
+    // Away from the edges of the visible surface (walls, rims, laser shadows, albedo edges) the misses and most
+    // false points are gone (the glossy patch's ghosts do not add to what is left: measured with gloss off).
     assert!(
         clean.truth > 9 * s.truth / 10,
         "{} of {} truth points away from edges",
