@@ -48,6 +48,10 @@ pub enum BenchCommand {
         /// Also write every true defect with what was found for it, and every false defect, to this CSV file.
         #[arg(long, value_name = "FILE")]
         csv: Option<std::path::PathBuf>,
+        /// Inspect every plate against a golden scan of a clean plate (scanned once, with a render seed of its own)
+        /// instead of a fitted plane.
+        #[arg(long)]
+        golden: bool,
     },
     /// Stripe coding over a whole simulated scan against the simulator's truth: right and wrong stripe indices
     /// frame by frame and after temporal reconciliation (Markdown table), and with --verbose where the wrong ones are.
@@ -127,15 +131,17 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             verbose,
             no_curvature_correction,
             csv,
-        } => crate::defects::bench_defects(
-            *parts,
-            *clean,
-            *defects,
-            *seed,
-            *verbose,
-            !*no_curvature_correction,
-            csv.as_deref(),
-        ),
+            golden,
+        } => crate::defects::bench_defects(&crate::defects::DefectBench {
+            parts: *parts,
+            clean: *clean,
+            per_part: *defects,
+            seed: *seed,
+            verbose: *verbose,
+            curvature_correction: !*no_curvature_correction,
+            csv: csv.as_deref(),
+            golden: *golden,
+        }),
         BenchCommand::Coding {
             scene,
             defect_plate,

@@ -14,6 +14,9 @@ use stripe3d_sim::batch::{Match, PartOutcome, match_defects};
 use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scan_scene_with};
 use stripe3d_sim::{DefectTruth, RenderOptions, Scene};
 
+/// `--golden`: the golden plate's render seed is the bench's seed plus this (no part shares it).
+const GOLDEN_SEED_OFFSET: u64 = 2_000_000;
+
 /// Targets of the defect-detection issue.
 const TARGET_RECALL: f64 = 0.99;
 const TARGET_PRECISION: f64 = 0.99;
@@ -22,16 +25,20 @@ const TARGET_CENTROID_MM: f64 = 0.5;
 const TARGET_AREA: f64 = 0.15;
 const TARGET_DEPTH_MM: f64 = 0.03;
 
-/// Inspects a range image of a plate scanned with `travel_step_mm` between frames against a fitted plane with the
-/// shipped rules and default parameters.
+/// Inspects a range image of a plate scanned with `travel_step_mm` between frames against a fitted plane (or the
+/// `golden` scan of a clean plate) with the shipped rules and default parameters.
 pub fn inspect_plate(
     range: &RangeImage,
     travel_step_mm: f64,
+    golden: Option<&RangeImage>,
 ) -> Result<(Vec<Defect>, Vec<String>)> {
     let mut rules = SurfaceRules::shipped()?;
     let i = inspect(
         range,
-        ReferenceSource::Fit(ReferenceShape::Plane),
+        golden.map_or(
+            ReferenceSource::Fit(ReferenceShape::Plane),
+            ReferenceSource::Golden,
+        ),
         &CharacterizeParams::default(),
         &mut rules,
         &DetectParams {
@@ -42,25 +49,36 @@ pub fn inspect_plate(
     Ok((i.detection.defects, i.detection.warnings))
 }
 
-fn scan_and_inspect(
-    sensor: &Sensor,
-    cal: &Calibration,
-    scene: &Scene,
-    seed: u64,
+/// What every plate of the benchmark goes through: the simulated sensor, its calibration, the scan's frames and grid,
+/// and the reference.
+struct Chain<'a> {
+    sensor: &'a Sensor,
+    cal: &'a Calibration,
     frames: usize,
     grid: [f64; 2],
     curvature_correction: bool,
-) -> Result<PartOutcome> {
+    golden: Option<&'a RangeImage>,
+}
+
+fn scan_and_inspect(chain: &Chain<'_>, scene: &Scene, seed: u64) -> Result<PartOutcome> {
     let opts = RenderOptions {
         seed,
         ..RenderOptions::default()
     };
-    let scan = scan_scene_with(sensor, cal, scene, frames, opts, grid, curvature_correction)
-        .with_context(|| format!("scanning {}", scene.name))?;
+    let scan = scan_scene_with(
+        chain.sensor,
+        chain.cal,
+        scene,
+        chain.frames,
+        opts,
+        chain.grid,
+        chain.curvature_correction,
+    )
+    .with_context(|| format!("scanning {}", scene.name))?;
     // The step of the conveyor `scan_scene` moves the part with.
-    let step = sensor.conveyor.clone().unwrap_or_default().step_mm();
-    let (found, warnings) =
-        inspect_plate(&scan.range, step).with_context(|| format!("inspecting {}", scene.name))?;
+    let step = chain.sensor.conveyor.clone().unwrap_or_default().step_mm();
+    let (found, warnings) = inspect_plate(&scan.range, step, chain.golden)
+        .with_context(|| format!("inspecting {}", scene.name))?;
     let mut out = match_defects(scan.simulator.defects(), &found);
     out.warnings = warnings;
     Ok(out)
@@ -125,16 +143,38 @@ pub fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[((v.len() - 1) as f64 * p).round() as usize]
 }
 
+/// What `stripe3d bench defects` is asked for.
+pub struct DefectBench<'a> {
+    /// Plates with defects.
+    pub parts: usize,
+    /// Clean plates.
+    pub clean: usize,
+    /// Defects per defective plate.
+    pub per_part: usize,
+    /// Seed of the random parts and renders.
+    pub seed: u64,
+    /// List every miss, wrong kind, out-of-tolerance measurement and false defect.
+    pub verbose: bool,
+    /// Correct the heights for the sheets' curvature bias.
+    pub curvature_correction: bool,
+    /// Also write the CSV of every defect here.
+    pub csv: Option<&'a Path>,
+    /// Inspect against a golden scan of a clean plate instead of a fitted plane.
+    pub golden: bool,
+}
+
 /// Runs `stripe3d bench defects`.
-pub fn bench_defects(
-    parts: usize,
-    clean: usize,
-    per_part: usize,
-    seed: u64,
-    verbose: bool,
-    curvature_correction: bool,
-    csv: Option<&Path>,
-) -> Result<()> {
+pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
+    let DefectBench {
+        parts,
+        clean,
+        per_part,
+        seed,
+        verbose,
+        curvature_correction,
+        csv,
+        golden,
+    } = *b;
     if parts == 0 && clean == 0 {
         bail!("--parts 0 --clean 0: nothing to measure");
     }
@@ -165,6 +205,36 @@ pub fn bench_defects(
     let cal = calibrate_sensor(&sensor, seed.wrapping_add(10_000))?;
     let frames = frames_for_sweep(&sensor, 2);
     let grid = crate::scan::default_grid(&sensor);
+    // The golden scan: a clean plate, rendered with a seed of its own, scanned as the parts are.
+    let golden_seed = seed.wrapping_add(GOLDEN_SEED_OFFSET);
+    let golden_range = if golden {
+        println!("scanning the golden plate (render seed {golden_seed}) ...");
+        let opts = RenderOptions {
+            seed: golden_seed,
+            ..RenderOptions::default()
+        };
+        let scan = scan_scene_with(
+            &sensor,
+            &cal,
+            &Scene::flat_plate(),
+            frames,
+            opts,
+            grid,
+            curvature_correction,
+        )
+        .context("scanning the golden plate")?;
+        Some(scan.range)
+    } else {
+        None
+    };
+    let chain = Chain {
+        sensor: &sensor,
+        cal: &cal,
+        frames,
+        grid,
+        curvature_correction,
+        golden: golden_range.as_ref(),
+    };
     let jobs: Vec<(bool, u64)> = (0..parts as u64)
         .map(|i| (true, seed.wrapping_add(i)))
         .chain((0..clean as u64).map(|i| (false, seed.wrapping_add(1_000_000 + i))))
@@ -184,8 +254,8 @@ pub fn bench_defects(
             } else {
                 Scene::flat_plate()
             };
-            let r = scan_and_inspect(&sensor, &cal, &scene, s, frames, grid, curvature_correction)
-                .map(|o| (defective, scene.name.clone(), s, o));
+            let r =
+                scan_and_inspect(&chain, &scene, s).map(|o| (defective, scene.name.clone(), s, o));
             bar.inc(1);
             r
         })
@@ -249,14 +319,19 @@ pub fn bench_defects(
     let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
     println!(
         "\n{} defective plates ({} defects each, {} in all) and {} clean plates, {} frames each, scanned and inspected in \
-         {seconds:.0} s on {} threads (curvature correction {})\n",
+         {seconds:.0} s on {} threads (curvature correction {}; reference: {})\n",
         parts,
         per_part,
         matches.len(),
         clean,
         frames,
         rayon::current_num_threads(),
-        if curvature_correction { "on" } else { "off" }
+        if curvature_correction { "on" } else { "off" },
+        if golden {
+            format!("golden scan of a clean plate, render seed {golden_seed}")
+        } else {
+            "fitted plane".to_string()
+        }
     );
     println!("| figure | measured | target | |");
     println!("|---|---|---|---|");

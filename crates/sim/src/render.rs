@@ -482,9 +482,8 @@ impl Simulator {
                 let albedo = self.field.surface_at(p.x - travel_mm, p.y).albedo;
                 if let Some((pz, plit, palbedo)) = prev {
                     let (lo, hi) = (albedo.min(palbedo), albedo.max(palbedo));
-                    marks[v * w + u] = (z - pz).abs() > EDGE_JUMP_MM
-                        || lit != plit
-                        || hi > EDGE_ALBEDO_RATIO * lo;
+                    marks[v * w + u] =
+                        (z - pz).abs() > EDGE_JUMP_MM || lit != plit || hi > EDGE_ALBEDO_RATIO * lo;
                 }
                 prev = Some((z, lit, albedo));
             }
