@@ -995,6 +995,33 @@ fn bench_defects_writes_every_defect_to_csv_and_refuses_a_missing_folder() {
 }
 
 #[test]
+fn bench_defects_against_a_golden_plate_finds_the_defects_and_says_so() {
+    let o = stripe3d(&[
+        "bench",
+        "defects",
+        "--parts",
+        "1",
+        "--clean",
+        "1",
+        "--defects",
+        "2",
+        "--golden",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("reference: golden scan of a clean plate, render seed 2000001"),
+        "{out}"
+    );
+    // Both defects of the plate found, nothing on the clean one.
+    assert!(out.contains("| recall | 100.00% (2 of 2) |"), "{out}");
+    assert!(
+        out.contains("| false defects on clean plates | 0 on 0 of 1 plates |"),
+        "{out}"
+    );
+}
+
+#[test]
 fn bench_coding_scores_a_scan_against_the_truth_and_refuses_bad_arguments() {
     let o = stripe3d(&["bench", "coding", "--scene", "block", "--frames", "3"]);
     assert!(o.status.success(), "{}", stderr(&o));
