@@ -626,9 +626,9 @@ struct SpanMap {
 impl SpanMap {
     fn new(range: &RangeImage, floor_mm: f64, reach: usize) -> Self {
         let (w, h) = (range.width, range.height);
-        // Along rows: cells i-reach..=i+1+reach; then along columns: rows j-1..=j+2 of those. Cells without a part height
-        // (NaN, the belt) enter as +inf to the minimum and -inf to the maximum, so that both are plain comparisons
-        // (which vectorise; `f32::min` with its NaN rule does not).
+        // Along rows: cells i-reach..=i+1+reach; then along columns: rows j-1..=j+2 of those. Cells without a part
+        // height (NaN, the belt) enter as +inf to the minimum and -inf to the maximum, so that both are plain
+        // comparisons (which vectorise; `f32::min` with its NaN rule does not).
         let (mn, mx) = (
             |a: f32, b: f32| if a < b { a } else { b },
             |a: f32, b: f32| if a > b { a } else { b },
@@ -759,8 +759,9 @@ impl Default for RegisterParams {
 /// ([`coarse_search`]).
 const COARSE_SHORTLIST: usize = 8;
 
-/// Robust cost of a registration over sample points (u, v, z), (u, v) mm from the registration's centre: the median absolute height difference after the
-/// median offset, with points off the golden part counted as 1 mm off. Returns (cost, dz, overlap).
+/// Robust cost of a registration over sample points (u, v, z), (u, v) mm from the registration's centre: the median
+/// absolute height difference after the median offset, with points off the golden part counted as 1 mm off.
+/// Returns (cost, dz, overlap).
 fn registration_cost(
     golden: &RangeImage,
     sample: &[(f64, f64, f64)],
