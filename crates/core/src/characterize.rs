@@ -759,9 +759,9 @@ impl Default for RegisterParams {
 /// ([`coarse_search`]).
 const COARSE_SHORTLIST: usize = 8;
 
-/// Robust cost of a registration over sample points (u, v, z), (u, v) mm from the registration's centre: the median
-/// absolute height difference after the median offset, with points off the golden part counted as 1 mm off.
-/// Returns (cost, dz, overlap).
+/// Robust cost of a registration over sample points (u, v, z), (u, v) mm from the registration's centre: the mean
+/// absolute height difference after the median offset, each clipped at 1 mm, with points off the golden part counted
+/// as 1 mm off. Returns (cost, dz, overlap).
 fn registration_cost(
     golden: &RangeImage,
     sample: &[(f64, f64, f64)],
