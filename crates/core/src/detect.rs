@@ -159,8 +159,8 @@ pub struct DetectParams {
     /// Smallest hole, in conveyor travel steps across (equivalent diameter of its gap), when the step is known
     /// ([`DetectParams::travel_step_mm`]): a stripe's samples missing for two or three frames (coding dropped them as
     /// ambiguous) leave a gap with the surface's height on every side, as a hole does. Measured on the demo part
-    /// scanned with seeds 1-7 against its golden scan: such gaps up to 1.55 mm (3.1 steps of 0.5 mm) across, of
-    /// which three were reported as holes; the smallest holes of interest (2 mm) leave 1.93 mm or more (3.9 steps;
+    /// scanned with seeds 1-7 against its golden scan: such gaps up to 1.55 mm (3.1 steps of 0.5 mm) across, four
+    /// of which were reported as holes; the smallest holes of interest (2 mm) leave 1.93 mm or more (3.9 steps;
     /// `bench defects`). Smaller gaps are reported as unmeasured, with this reason.
     pub min_hole_travel_steps: f64,
     /// Conveyor travel between frames, mm (the sampling step along x), when known. The last sample before a hole
