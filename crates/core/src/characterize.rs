@@ -1701,17 +1701,25 @@ mod tests {
         }
     }
 
+    /// The registration tests' part: a 30 x 20 mm plate with a hole and a 4 mm step in one corner; `top` is the
+    /// height of the rest of its top at (x, y).
+    fn stepped_plate(x: f64, y: f64, top: impl Fn(f64, f64) -> f64) -> f64 {
+        if x.abs() > 15.0 || y.abs() > 10.0 || (x - 5.0).hypot(y - 3.0) < 2.0 {
+            0.0
+        } else if x < -5.0 && y > 0.0 {
+            14.0
+        } else {
+            top(x, y)
+        }
+    }
+
     #[test]
     fn the_coarse_searchs_shortlist_picks_what_the_full_search_picks() {
+        // A gentle tilt and some deterministic roughness on the top, so that the costs are not flat.
         let part = |x: f64, y: f64| {
-            if x.abs() > 15.0 || y.abs() > 10.0 || (x - 5.0).hypot(y - 3.0) < 2.0 {
-                0.0
-            } else if x < -5.0 && y > 0.0 {
-                14.0
-            } else {
-                // A gentle tilt and some deterministic roughness, so that the costs are not flat.
+            stepped_plate(x, y, |x, y| {
                 10.0 + 0.02 * x + 0.01 * ((7.0 * x).sin() * (5.0 * y).cos())
-            }
+            })
         };
         let golden = image(200, 150, part);
         let params = RegisterParams::default();
@@ -1781,15 +1789,7 @@ mod tests {
 
     #[test]
     fn registration_recovers_a_shift_rotation_and_height() {
-        let part = |x: f64, y: f64| {
-            if x.abs() > 15.0 || y.abs() > 10.0 || (x - 5.0).hypot(y - 3.0) < 2.0 {
-                0.0
-            } else if x < -5.0 && y > 0.0 {
-                14.0
-            } else {
-                10.0
-            }
-        };
+        let part = |x: f64, y: f64| stepped_plate(x, y, |_, _| 10.0);
         let golden = image(200, 150, part);
         let moves: [(f64, f64, f64, f64); 2] = [(1.3, -0.7, 0.02, 0.05), (-3.6, 2.4, -0.015, -0.2)];
         let mut scan = golden.clone();
