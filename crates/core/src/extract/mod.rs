@@ -584,11 +584,8 @@ impl Extractor {
                 Method::Steger | Method::Steger2d => {
                     let s = steger::scale_for_width(stripe_sigma(line, p, bg));
                     let kern = self.kernels.get(s);
-                    let at = |i: isize| {
-                        f64::from(line[i.clamp(0, line.len() as isize - 1) as usize].to_f32())
-                    };
                     if self.params.method == Method::Steger {
-                        steger::steger_1d(at, p.center() as isize, kern)
+                        steger::steger_1d_line(line, p.center(), kern)
                     } else {
                         let axis = self.params.axis;
                         let (w, h) = (img.width() as isize, img.height() as isize);

@@ -6,6 +6,8 @@
 //! `s = max(MIN_SCALE, w / √3)` for a stripe of half-width `w` (Steger's condition for a bar profile), rounded to
 //! [`SCALE_STEP`] so kernels are computed once per scale.
 
+use crate::image::Pixel;
+
 /// Smallest scale used, pixels.
 pub const MIN_SCALE: f64 = 0.8;
 /// Scales are rounded to multiples of this, pixels.
@@ -82,11 +84,10 @@ impl Kernels {
         }
     }
 
-    /// First and second derivative of the smoothed line at `x` (any real position).
+    /// First and second derivative of the smoothed line at `x` (any real position), and the position they are
+    /// evaluated at (`x` on the grid of [`SUBPIXEL_STEPS`]).
     fn derivatives(&self, f: &impl Fn(isize) -> f64, x: f64) -> (f64, f64, f64) {
-        let xi = round(x);
-        let step = round((x - xi + 0.5) * SUBPIXEL_STEPS as f64).clamp(0.0, SUBPIXEL_STEPS as f64)
-            as usize;
+        let (xi, step) = grid_point(x);
         let (a, b) = &self.shifted[step];
         let r = self.radius as isize;
         let (mut r1, mut r2, mut mag) = (0.0, 0.0, 0.0);
@@ -97,15 +98,57 @@ impl Kernels {
             r2 += v * b[idx];
             mag += (v * b[idx]).abs();
         }
-        let at = xi + step as f64 / SUBPIXEL_STEPS as f64 - 0.5;
-        // A bright line has a clearly negative second derivative (not rounding noise on a flat line): NaN else.
-        let r2 = if r2 < -1e-9 * mag.max(1e-300) {
-            r2
-        } else {
-            f64::NAN
-        };
-        (r1, r2, at)
+        finish(r1, r2, mag, xi, step)
     }
+
+    /// [`Kernels::derivatives`] at evaluation point (`xi`, `step`) of a kernel window lying inside `line`: the
+    /// pixels read straight from the line, without clamping (the same values in the same order, so the same sums
+    /// to the bit). `None` when the window does not lie inside the line.
+    #[inline]
+    fn derivatives_inside<T: Pixel>(
+        &self,
+        line: &[T],
+        xi: f64,
+        step: usize,
+    ) -> Option<(f64, f64, f64)> {
+        let r = self.radius;
+        let lo = (xi as isize).checked_sub(r as isize)?;
+        let w = line.get(usize::try_from(lo).ok()?..)?.get(..2 * r + 1)?;
+        let (a, b) = &self.shifted[step];
+        let n = w.len();
+        let (a, b) = (&a[..n], &b[..n]);
+        let (mut r1, mut r2, mut mag) = (0.0, 0.0, 0.0);
+        // Entry idx of the kernels weighs pixel xi + r − idx.
+        for idx in 0..n {
+            let v = f64::from(w[n - 1 - idx].to_f32());
+            r1 += v * a[idx];
+            r2 += v * b[idx];
+            mag += (v * b[idx]).abs();
+        }
+        Some(finish(r1, r2, mag, xi, step))
+    }
+}
+
+/// The pixel and sub-pixel step of the evaluation point nearest to `x`.
+#[inline]
+fn grid_point(x: f64) -> (f64, usize) {
+    let xi = round(x);
+    let step =
+        round((x - xi + 0.5) * SUBPIXEL_STEPS as f64).clamp(0.0, SUBPIXEL_STEPS as f64) as usize;
+    (xi, step)
+}
+
+/// The derivatives' sums made a result: the evaluation point, and the second derivative NaN unless a bright line
+/// makes it clearly negative (not rounding noise on a flat line).
+#[inline]
+fn finish(r1: f64, r2: f64, mag: f64, xi: f64, step: usize) -> (f64, f64, f64) {
+    let at = xi + step as f64 / SUBPIXEL_STEPS as f64 - 0.5;
+    let r2 = if r2 < -1e-9 * mag.max(1e-300) {
+        r2
+    } else {
+        f64::NAN
+    };
+    (r1, r2, at)
 }
 
 /// `x.round()` (half away from zero) for the finite positions and scales of this module, |x| < 2^52, without the
@@ -160,12 +203,31 @@ pub fn scale_for_width(sigma: f64) -> f64 {
 /// 1-D Steger at integer position `x0` of a line accessed by `f(i)` (clamped at the ends): the sub-pixel position
 /// where the smoothed first derivative vanishes, or `None` when the line is not bright there.
 pub fn steger_1d(f: impl Fn(isize) -> f64, x0: isize, k: &Kernels) -> Option<f64> {
-    // Newton's method on the smoothed first derivative, evaluated at sub-pixel positions with tabulated kernels,
-    // so the result is the zero of the derivative itself (Steger's Taylor step at the pixel centre alone leaves a
-    // bias of up to delta^3 / sigma^2).
+    newton(x0, |x| k.derivatives(&f, x))
+}
+
+/// [`steger_1d`] on a line of pixels, clamped at its ends: where the kernel's window lies inside the line (every
+/// point but those within its reach of the ends) the pixels are read straight from it, without a clamp and a call
+/// per pixel (the same values, so the same result to the bit).
+pub fn steger_1d_line<T: Pixel>(line: &[T], x0: usize, k: &Kernels) -> Option<f64> {
+    let last = line.len().checked_sub(1)? as isize;
+    let f = |i: isize| f64::from(line[i.clamp(0, last) as usize].to_f32());
+    newton(x0 as isize, |x| {
+        let (xi, step) = grid_point(x);
+        k.derivatives_inside(line, xi, step)
+            .unwrap_or_else(|| k.derivatives(&f, x))
+    })
+}
+
+/// Newton's method on the smoothed first derivative from `x0`, `derivatives(x)` giving the first and second
+/// derivative at the evaluation point nearest to x and that point.
+#[inline]
+fn newton(x0: isize, derivatives: impl Fn(f64) -> (f64, f64, f64)) -> Option<f64> {
+    // Evaluated at sub-pixel positions with tabulated kernels, so the result is the zero of the derivative itself
+    // (Steger's Taylor step at the pixel centre alone leaves a bias of up to delta^3 / sigma^2).
     let mut x = x0 as f64;
     for _ in 0..6 {
-        let (r1, r2, at) = k.derivatives(&f, x);
+        let (r1, r2, at) = derivatives(x);
         if !r2.is_finite() {
             return None;
         }
@@ -265,6 +327,41 @@ pub fn steger_2d(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reading_the_line_directly_gives_the_clamped_readings_result() {
+        // Gaussian stripes at random sub-pixel centres and widths on noisy lines, some near the ends (where the
+        // kernel's window leaves the line and the clamped reading takes over), in 8 and 16 bits.
+        let mut rng = 99u32;
+        let mut next = || {
+            rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            f64::from(rng >> 8) / f64::from(1u32 << 24)
+        };
+        let mut cache = KernelCache::default();
+        let mut found = 0;
+        for case in 0..3000 {
+            let n = 40 + (next() * 80.0) as usize;
+            let c = next() * (n - 1) as f64;
+            let sigma = 0.6 + 3.0 * next();
+            let amp = 30.0 + 200.0 * next();
+            let line: Vec<f64> = (0..n)
+                .map(|i| 5.0 + 4.0 * next() + amp * (-0.5 * ((i as f64 - c) / sigma).powi(2)).exp())
+                .collect();
+            let x0 = (c.round() as usize).min(n - 1);
+            let k = cache.get(scale_for_width(sigma)).clone();
+            let l8: Vec<u8> = line.iter().map(|&v| v.min(255.0) as u8).collect();
+            let l16: Vec<u16> = line.iter().map(|&v| (v * 200.0) as u16).collect();
+            let clamped8 = |i: isize| f64::from(l8[i.clamp(0, n as isize - 1) as usize]);
+            let clamped16 = |i: isize| f64::from(l16[i.clamp(0, n as isize - 1) as usize]);
+            let (a8, b8) = (steger_1d_line(&l8, x0, &k), steger_1d(clamped8, x0 as isize, &k));
+            let (a16, b16) = (steger_1d_line(&l16, x0, &k), steger_1d(clamped16, x0 as isize, &k));
+            assert_eq!(a8.map(f64::to_bits), b8.map(f64::to_bits), "u8, case {case}");
+            assert_eq!(a16.map(f64::to_bits), b16.map(f64::to_bits), "u16, case {case}");
+            found += usize::from(a8.is_some());
+        }
+        assert!(found > 2500, "{found}");
+        assert_eq!(steger_1d_line::<u8>(&[], 0, &cache.get(1.0).clone()), None);
+    }
 
     #[test]
     fn rounding_is_the_librarys() {
