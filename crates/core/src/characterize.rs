@@ -173,12 +173,28 @@ impl Reference {
     }
 }
 
+/// A grid index as `f64`, through `i64`: the same value for any index a grid can have (below 2^53), and one
+/// instruction on the baseline x86-64 target, where `usize as f64` takes a sequence for the unsigned case (the
+/// per-cell loops of the golden comparison convert an index or two per cell).
+#[inline]
+fn index_f64(i: usize) -> f64 {
+    i as i64 as f64
+}
+
+/// The floor of a non-negative, finite fractional cell index below 2^63, as an index: truncation through `i64`
+/// (for such values the same as `as usize`, which on the baseline x86-64 target takes a longer sequence for the
+/// unsigned case).
+#[inline]
+fn floor_index(f: f64) -> usize {
+    f as i64 as usize
+}
+
 /// Part coordinates of cell (i, j), mm.
 #[inline]
 pub fn cell_xy(range: &RangeImage, i: usize, j: usize) -> (f64, f64) {
     (
-        range.origin_mm[0] + i as f64 * range.spacing_mm[0],
-        range.origin_mm[1] - j as f64 * range.spacing_mm[1],
+        range.origin_mm[0] + index_f64(i) * range.spacing_mm[0],
+        range.origin_mm[1] - index_f64(j) * range.spacing_mm[1],
     )
 }
 
@@ -679,11 +695,12 @@ impl SpanMap {
 
     /// The span around fractional cell indices (fi, fj) of `range` (the one the map was made of).
     fn at(&self, range: &RangeImage, fi: f64, fj: f64) -> Option<(f64, f64)> {
-        if !(fi >= 0.0 && fj >= 0.0 && fi < range.width as f64 && fj < range.height as f64) {
+        if !(fi >= 0.0 && fj >= 0.0 && fi < index_f64(range.width) && fj < index_f64(range.height))
+        {
             return local_span(range, fi, fj, self.floor_mm, self.reach);
         }
         // Truncation is the floor here.
-        let k = fj as usize * range.width + fi as usize;
+        let k = floor_index(fj) * range.width + floor_index(fi);
         let (lo, hi) = (self.lo[k], self.hi[k]);
         (lo <= hi).then_some((f64::from(lo), f64::from(hi)))
     }
@@ -715,12 +732,15 @@ fn grid_coords(range: &RangeImage, x: f64, y: f64) -> (f64, f64) {
 #[inline]
 fn bilinear_cell(range: &RangeImage, fi: f64, fj: f64, floor_mm: f64) -> Option<f64> {
     // (The conversions truncate, which for these non-negative values is the floor, without a libm call.)
-    if !(fi >= 0.0 && fj >= 0.0 && fi + 1.0 < range.width as f64 && fj + 1.0 < range.height as f64)
+    if !(fi >= 0.0
+        && fj >= 0.0
+        && fi + 1.0 < index_f64(range.width)
+        && fj + 1.0 < index_f64(range.height))
     {
         return None;
     }
-    let (i, j) = (fi as usize, fj as usize);
-    let (a, b) = (fi - i as f64, fj - j as f64);
+    let (i, j) = (floor_index(fi), floor_index(fj));
+    let (a, b) = (fi - index_f64(i), fj - index_f64(j));
     let at = |i: usize, j: usize| f64::from(range.z[j * range.width + i]);
     let (z00, z10, z01, z11) = (at(i, j), at(i + 1, j), at(i, j + 1), at(i + 1, j + 1));
     // NaN fails the comparison too.
@@ -857,20 +877,22 @@ pub fn register(
 ) -> Result<Registration, CoreError> {
     let belt = params.belt_level_mm;
     // The part's cells (above the belt), in row order, without a vector of them all: their count and centroid,
-    // then every k-th of them as the samples.
-    fn part_cells(r: &RangeImage, belt: f64) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
-        let w = r.width;
-        r.z.iter()
+    // then every k-th of them as the samples. Cells as (i, j, height), row by row (no division of a flat index
+    // per cell; each a 64-bit division, the pass's largest cost), and their coordinates only where used.
+    fn part_cells(r: &RangeImage, belt: f64) -> impl Iterator<Item = (usize, usize, f64)> + '_ {
+        r.z.chunks(r.width.max(1))
             .enumerate()
-            .filter(move |&(_, &z)| f64::from(z) > belt)
-            .map(move |(k, &z)| {
-                let (x, y) = cell_xy(r, k % w, k / w);
-                (x, y, f64::from(z))
+            .flat_map(move |(j, row)| {
+                row.iter().enumerate().filter_map(move |(i, &z)| {
+                    let z = f64::from(z);
+                    (z > belt).then_some((i, j, z))
+                })
             })
     }
     let centroid = |r: &RangeImage| {
         let (mut n, mut sx, mut sy) = (0usize, 0.0, 0.0);
-        for (x, y, _) in part_cells(r, belt) {
+        for (i, j, _) in part_cells(r, belt) {
+            let (x, y) = cell_xy(r, i, j);
             n += 1;
             sx += x;
             sy += y;
@@ -889,7 +911,10 @@ pub fn register(
         });
     }
     // The samples as offsets from the centre of rotation, which every candidate shares.
-    let from_centre = |(x, y, z)| (x - centre[0], y - centre[1], z);
+    let from_centre = |(i, j, z)| {
+        let (x, y) = cell_xy(scan, i, j);
+        (x - centre[0], y - centre[1], z)
+    };
     let coarse: Vec<(f64, f64, f64)> = part_cells(scan, belt)
         .step_by((count / 1500).max(1))
         .map(from_centre)
@@ -1401,6 +1426,28 @@ mod tests {
         mean_difference_mm: 0.0,
         overlap: 1.0,
     };
+
+    #[test]
+    fn index_conversions_are_the_plain_casts() {
+        let mut rng = 3u64;
+        for _ in 0..100_000 {
+            rng = rng
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            let i = (rng >> 11) as usize >> (rng % 50);
+            assert_eq!(index_f64(i).to_bits(), (i as f64).to_bits());
+            let f = f64::from_bits(rng >> 2).abs();
+            let f = if f.is_finite() && f < 9.0e18 {
+                f
+            } else {
+                (rng % 1_000_000) as f64 / 7.0
+            };
+            assert_eq!(floor_index(f), f as usize, "{f}");
+        }
+        for f in [0.0, 0.5, 0.999_999_999, 1.0, 840.0, 840.999, 4.5e15] {
+            assert_eq!(floor_index(f), f as usize);
+        }
+    }
 
     #[test]
     fn a_golden_wall_reaches_a_travel_step_along_x() {
