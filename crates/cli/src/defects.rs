@@ -8,7 +8,9 @@ use std::path::Path;
 use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::RangeImage;
 use stripe3d_core::calibrate::Calibration;
-use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
+use stripe3d_core::characterize::{
+    CharacterizeParams, PreparedGolden, ReferenceShape, ReferenceSource,
+};
 use stripe3d_core::detect::{Defect, DetectParams, SurfaceRules, inspect};
 use stripe3d_sim::batch::{Match, PartOutcome, match_defects};
 use stripe3d_sim::pipeline::{calibrate_sensor, frames_for_sweep, scan_scene_with};
@@ -26,18 +28,19 @@ const TARGET_AREA: f64 = 0.15;
 const TARGET_DEPTH_MM: f64 = 0.03;
 
 /// Inspects a range image of a plate scanned with `travel_step_mm` between frames against a fitted plane (or the
-/// `golden` scan of a clean plate) with the shipped rules and default parameters.
+/// `golden` scan of a clean plate, prepared once for all plates) with the shipped rules and
+/// default parameters.
 pub fn inspect_plate(
     range: &RangeImage,
     travel_step_mm: f64,
-    golden: Option<&RangeImage>,
+    golden: Option<&PreparedGolden>,
 ) -> Result<(Vec<Defect>, Vec<String>)> {
     let mut rules = SurfaceRules::shipped()?;
     let i = inspect(
         range,
         golden.map_or(
             ReferenceSource::Fit(ReferenceShape::Plane),
-            ReferenceSource::Golden,
+            ReferenceSource::Prepared,
         ),
         &CharacterizeParams::default(),
         &mut rules,
@@ -57,7 +60,7 @@ struct Chain<'a> {
     frames: usize,
     grid: [f64; 2],
     curvature_correction: bool,
-    golden: Option<&'a RangeImage>,
+    golden: Option<&'a PreparedGolden>,
 }
 
 fn scan_and_inspect(chain: &Chain<'_>, scene: &Scene, seed: u64) -> Result<PartOutcome> {
@@ -223,7 +226,14 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
             curvature_correction,
         )
         .context("scanning the golden plate")?;
-        Some(scan.range)
+        // Cleaned and its wall spans mapped once for every plate, with the inspection's own parameters.
+        let step = sensor.conveyor.clone().unwrap_or_default().step_mm();
+        Some(PreparedGolden::new(
+            &scan.range,
+            DetectParams::default().outlier_mm,
+            CharacterizeParams::default().belt_level_mm,
+            Some(step),
+        ))
     } else {
         None
     };

@@ -4,7 +4,9 @@
 //! <= 50 ms on one core.
 
 use stripe3d_core::accumulate::RangeImage;
-use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
+use stripe3d_core::characterize::{
+    CharacterizeParams, PreparedGolden, ReferenceShape, ReferenceSource,
+};
 use stripe3d_core::detect::{DetectParams, SurfaceRules, bell, inspect};
 
 fn main() {
@@ -88,6 +90,32 @@ fn inspect_80x60mm_at_0_1mm_against_golden(b: divan::Bencher) {
     b.bench_local(|| {
         let i =
             inspect(&r, ReferenceSource::Golden(&golden), &cp, &mut rules, &dp).expect("inspect");
+        divan::black_box(i)
+    });
+}
+
+/// The same against the golden scan prepared once (cleaned, its wall spans mapped: `PreparedGolden`), as a line
+/// inspecting many parts of one product does: the per-part cost.
+#[divan::bench]
+fn inspect_80x60mm_at_0_1mm_against_prepared_golden(b: divan::Bencher) {
+    let r = part();
+    let golden = part_with(false);
+    let mut rules = SurfaceRules::shipped().expect("rules");
+    let cp = CharacterizeParams::default();
+    let dp = DetectParams {
+        travel_step_mm: Some(0.5),
+        ..DetectParams::default()
+    };
+    let prepared = PreparedGolden::new(&golden, dp.outlier_mm, cp.belt_level_mm, dp.travel_step_mm);
+    b.bench_local(|| {
+        let i = inspect(
+            &r,
+            ReferenceSource::Prepared(&prepared),
+            &cp,
+            &mut rules,
+            &dp,
+        )
+        .expect("inspect");
         divan::black_box(i)
     });
 }

@@ -20,8 +20,8 @@
 use crate::CoreError;
 use crate::accumulate::RangeImage;
 use crate::characterize::{
-    CellClass, CharacterizeParams, ReferenceInfo, ReferenceSource, SurfaceMaps, cell_xy,
-    geometry_at, median, reference_heights, remove_outliers, surface_maps,
+    CellClass, CharacterizeParams, PreparedGolden, ReferenceInfo, ReferenceSource, SurfaceMaps,
+    cell_xy, geometry_at, median, reference_heights, remove_outliers, surface_maps,
 };
 use crate::rules::RuleBase;
 use stripe3d_fuzzy::Engine;
@@ -1617,17 +1617,27 @@ pub fn inspect(
     let mut cleaned = range.clone();
     let outliers = remove_outliers(&mut cleaned, params.outlier_mm);
     // A golden scan is a scan too: its wrong-index fragments would stand in the reference as pits or spikes that
-    // every part then "has". It is cleaned the same way.
-    let golden_cleaned = match source {
-        ReferenceSource::Golden(golden) => {
-            let mut g = golden.clone();
-            remove_outliers(&mut g, params.outlier_mm);
-            Some(g)
+    // every part then "has". It is cleaned the same way (`PreparedGolden`; once for many parts when the caller
+    // prepares it).
+    let prepared = match source {
+        ReferenceSource::Golden(golden) => Some(PreparedGolden::new(
+            golden,
+            params.outlier_mm,
+            characterize.belt_level_mm,
+            params.travel_step_mm,
+        )),
+        ReferenceSource::Prepared(p) => {
+            p.check(
+                params.outlier_mm,
+                characterize.belt_level_mm,
+                params.travel_step_mm,
+            )?;
+            None
         }
         ReferenceSource::Fit(_) => None,
     };
-    let source = match &golden_cleaned {
-        Some(g) => ReferenceSource::Golden(g),
+    let source = match &prepared {
+        Some(p) => ReferenceSource::Prepared(p),
         None => source,
     };
     let (heights, reference) =
@@ -2029,6 +2039,76 @@ mod tests {
         )
         .expect("inspect");
         assert!(i.detection.defects.is_empty(), "{:?}", i.detection.defects);
+    }
+
+    #[test]
+    fn a_prepared_golden_scan_inspects_as_the_golden_scan_and_refuses_other_parameters() {
+        // A part with a dent, against a golden scan with a wrong-index column (cleaned by the preparation as by the
+        // inspection) and a 3 mm step (its walls' spans reach a travel step).
+        let part = plate(|x, y| {
+            Some(if x > 5.0 { 3.0 } else { 0.0 } - 0.3 * bell((x + 8.0).hypot(y - 2.0), 2.5))
+        });
+        let mut golden = plate(|x, _| Some(if x > 5.0 { 3.0 } else { 0.0 }));
+        for j in 80..100 {
+            golden.z[j * golden.width + 60] -= 3.0;
+        }
+        let params = DetectParams {
+            travel_step_mm: Some(0.5),
+            ..DetectParams::default()
+        };
+        let cp = CharacterizeParams::default();
+        let mut rules = SurfaceRules::shipped().expect("rules");
+        let raw = inspect(
+            &part,
+            ReferenceSource::Golden(&golden),
+            &cp,
+            &mut rules,
+            &params,
+        )
+        .expect("inspect");
+        let prepared = PreparedGolden::new(&golden, params.outlier_mm, cp.belt_level_mm, Some(0.5));
+        let ready = inspect(
+            &part,
+            ReferenceSource::Prepared(&prepared),
+            &cp,
+            &mut rules,
+            &params,
+        )
+        .expect("inspect");
+        assert_eq!(
+            raw.detection.defects.len(),
+            1,
+            "{:?}",
+            raw.detection.defects
+        );
+        assert_eq!(raw.detection, ready.detection);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(bits(&raw.maps.reference_mm) == bits(&ready.maps.reference_mm));
+        // Prepared with another outlier limit or travel step: refused, naming it.
+        for (other, what) in [
+            (
+                PreparedGolden::new(&golden, 2.0, cp.belt_level_mm, Some(0.5)),
+                "outlier limit",
+            ),
+            (
+                PreparedGolden::new(&golden, params.outlier_mm, cp.belt_level_mm, None),
+                "travel step",
+            ),
+            (
+                PreparedGolden::new(&golden, params.outlier_mm, 1.0, Some(0.5)),
+                "belt level",
+            ),
+        ] {
+            let e = inspect(
+                &part,
+                ReferenceSource::Prepared(&other),
+                &cp,
+                &mut rules,
+                &params,
+            )
+            .expect_err("other parameters");
+            assert!(e.to_string().contains(what), "{e}");
+        }
     }
 
     #[test]

@@ -353,10 +353,24 @@ mod tests {
             let l16: Vec<u16> = line.iter().map(|&v| (v * 200.0) as u16).collect();
             let clamped8 = |i: isize| f64::from(l8[i.clamp(0, n as isize - 1) as usize]);
             let clamped16 = |i: isize| f64::from(l16[i.clamp(0, n as isize - 1) as usize]);
-            let (a8, b8) = (steger_1d_line(&l8, x0, &k), steger_1d(clamped8, x0 as isize, &k));
-            let (a16, b16) = (steger_1d_line(&l16, x0, &k), steger_1d(clamped16, x0 as isize, &k));
-            assert_eq!(a8.map(f64::to_bits), b8.map(f64::to_bits), "u8, case {case}");
-            assert_eq!(a16.map(f64::to_bits), b16.map(f64::to_bits), "u16, case {case}");
+            let (a8, b8) = (
+                steger_1d_line(&l8, x0, &k),
+                steger_1d(clamped8, x0 as isize, &k),
+            );
+            let (a16, b16) = (
+                steger_1d_line(&l16, x0, &k),
+                steger_1d(clamped16, x0 as isize, &k),
+            );
+            assert_eq!(
+                a8.map(f64::to_bits),
+                b8.map(f64::to_bits),
+                "u8, case {case}"
+            );
+            assert_eq!(
+                a16.map(f64::to_bits),
+                b16.map(f64::to_bits),
+                "u16, case {case}"
+            );
             found += usize::from(a8.is_some());
         }
         assert!(found > 2500, "{found}");
