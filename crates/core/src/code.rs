@@ -315,7 +315,10 @@ impl Default for TemporalParams {
 /// frame on the same row when each is the other's only neighbour within [`TemporalParams::link_px`] — the same stripe
 /// on the same surface, 0.5 mm further along — and linked points form tracks. A point the coder dropped as ambiguous
 /// takes its track's label when the points of the track their own rows settled agree on it (at least `min_votes`, at
-/// least `min_share` of them, in frames before and after) and the label is one its own row could nearly take. So does a
+/// least `min_share` of them, in frames before and after) and the label is one its own row could nearly take — or,
+/// when as many settled points as overrule a row ([`TemporalParams::overrule_votes`]) agree in frames before and
+/// after, even a label its row would not take (its row was read one over with confidence: a sheet's leading fragment
+/// on a part's edge read as one more stripe; the row's points no track supports then give way). So does a
 /// point only the segment vote coded (its row could not settle it) whose track reads it otherwise: a segment that runs
 /// the length of a plate can carry one frame's misreading down every row. At a track's end (a sheet sliding over an
 /// edge, about to vanish) there is no frame after it: such a point follows the track when at least
@@ -565,8 +568,16 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 // start), a label the segment vote gave gives way to as many settled points as overrule a row.
                 let extends =
                     current.is_some() && params.overrule_votes > 0 && c >= params.overrule_votes;
+                // A dropped point whose track settled the label in frames before and after as firmly as overrules a
+                // row takes it even when its own row would not nearly take it: the row's confident reading that
+                // dropped it was one over (a sheet's leading fragment on a part's edge read as one more stripe).
+                // It counts as an overrule: the row's points no track supports give way where the order breaks.
+                let firm = current.is_none()
+                    && around
+                    && params.overrule_votes > 0
+                    && c >= params.overrule_votes;
                 if c < params.min_votes
-                    || !near.contains(&w)
+                    || !(near.contains(&w) || firm)
                     || !(around || extends)
                     || current == Some(w)
                 {
@@ -574,6 +585,9 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 }
                 proposal[i - s] = Some(w);
                 changed = true;
+                if !near.contains(&w) {
+                    overruled = true;
+                }
             }
             // A dropped point the row's order leaves one label alone (between its labelled neighbours) takes it when
             // its track agrees, by a majority too small for the rule above.
@@ -2293,6 +2307,43 @@ mod temporal_tests {
     }
 
     #[test]
+    fn a_point_dropped_by_a_frame_read_one_over_takes_its_firm_tracks_label() {
+        // Frame 6: a dim fragment right of the last stripe (a sheet's leading edge on a part's corner) is read
+        // with confidence as stripe 2, and the stripe at 200 was dropped: its row would only read it as 1.
+        let setup = |n: usize| {
+            let mut f = frames(n, 0.2);
+            let fr = &mut f[n / 2];
+            fr.points.push(StripePoint {
+                x: 225.0,
+                intensity: 15.0,
+                ..fr.points[2]
+            });
+            fr.coding.stripes.push(Some(2));
+            fr.coding.near.push([2, NO_LABEL, NO_LABEL]);
+            fr.coding.row_confident.push(true);
+            fr.coding.stats.points += 1;
+            drop(fr, 2, [1, NO_LABEL, NO_LABEL]);
+            f
+        };
+        // Its track settled 2 in 8 frames before and 7 after: the point takes 2 though its row would not, and the
+        // fragment, which no track supports and which now breaks the row's order, gives way.
+        let mut f = setup(16);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 2);
+        assert_eq!(f[8].coding.stripes, vec![Some(0), Some(1), Some(2), None]);
+        // With 5 settled frames around it (3 before, 2 after), fewer than overrule a row: the row's reading stands.
+        let mut g = setup(6);
+        assert_eq!(reconcile(&mut g, &TemporalParams::default()), 0);
+        assert_eq!(g[3].coding.stripes[2], None);
+        // Nor with overruling off.
+        let mut h = setup(16);
+        let off = TemporalParams {
+            overrule_votes: 0,
+            ..TemporalParams::default()
+        };
+        assert_eq!(reconcile(&mut h, &off), 0);
+    }
+
+    #[test]
     fn two_supported_labels_in_conflict_overrule_nothing() {
         let mut f = frames(16, 0.2);
         // The ghost's column is lit in every frame and read as 2 there: its track supports it as much as the
@@ -2321,8 +2372,9 @@ mod temporal_tests {
         let mut f = frames(7, 5.0);
         drop(&mut f[3], 2, [2, 1, NO_LABEL]);
         assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
-        // The track's label is not one the row could take.
-        let mut f = frames(7, 0.0);
+        // The track's label is not one the row could take, and the track (5 settled points) is not firm enough to
+        // overrule the row (`a_point_dropped_by_a_frame_read_one_over_takes_its_firm_tracks_label`).
+        let mut f = frames(6, 0.0);
         drop(&mut f[3], 2, [1, NO_LABEL, NO_LABEL]);
         assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
         // The label would break the row's order (its right neighbour was coded 1).
