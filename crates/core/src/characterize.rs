@@ -13,7 +13,7 @@
 //! smeared across holes and edges.
 
 use crate::CoreError;
-use crate::accumulate::RangeImage;
+use crate::accumulate::{RangeImage, floor_index, index_f64};
 use nalgebra::{DMatrix, DVector};
 
 /// What a range cell shows.
@@ -171,22 +171,6 @@ impl Reference {
         }
         out
     }
-}
-
-/// A grid index as `f64`, through `i64`: the same value for any index a grid can have (below 2^53), and one
-/// instruction on the baseline x86-64 target, where `usize as f64` takes a sequence for the unsigned case (the
-/// per-cell loops of the golden comparison convert an index or two per cell).
-#[inline]
-fn index_f64(i: usize) -> f64 {
-    i as i64 as f64
-}
-
-/// The floor of a non-negative, finite fractional cell index below 2^63, as an index: truncation through `i64`
-/// (for such values the same as `as usize`, which on the baseline x86-64 target takes a longer sequence for the
-/// unsigned case).
-#[inline]
-fn floor_index(f: f64) -> usize {
-    f as i64 as usize
 }
 
 /// Part coordinates of cell (i, j), mm.
@@ -1518,28 +1502,6 @@ mod tests {
         mean_difference_mm: 0.0,
         overlap: 1.0,
     };
-
-    #[test]
-    fn index_conversions_are_the_plain_casts() {
-        let mut rng = 3u64;
-        for _ in 0..100_000 {
-            rng = rng
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            let i = (rng >> 11) as usize >> (rng % 50);
-            assert_eq!(index_f64(i).to_bits(), (i as f64).to_bits());
-            let f = f64::from_bits(rng >> 2).abs();
-            let f = if f.is_finite() && f < 9.0e18 {
-                f
-            } else {
-                (rng % 1_000_000) as f64 / 7.0
-            };
-            assert_eq!(floor_index(f), f as usize, "{f}");
-        }
-        for f in [0.0, 0.5, 0.999_999_999, 1.0, 840.0, 840.999, 4.5e15] {
-            assert_eq!(floor_index(f), f as usize);
-        }
-    }
 
     #[test]
     fn a_golden_wall_reaches_a_travel_step_along_x() {
