@@ -285,10 +285,11 @@ pub struct TemporalParams {
     /// the track's end (or start) that only the segment vote coded. A single frame can be misread with confidence as a whole (a sheet's dim tail read as one
     /// more stripe shifts its row by one index) while the frames around it read the same stripes right.
     pub overrule_votes: usize,
-    /// Fewest agreeing labels the segment vote gave the track's points, in frames before and after, for the track to
-    /// overrule a label the point's own row settled when no other frame's row settled one (0: never). A band of rows
-    /// can be read one stripe over with confidence in one frame while the frames around it, ambiguous row by row,
-    /// were coded right by their segments.
+    /// Fewest agreeing labels the segment vote gave the track's points (each label a row settled for the track
+    /// counting two), in frames before and after or on the one side there is, for the track to overrule a label the
+    /// point's own row settled when no other frame's row settled another (0: never). A band of rows can be read one
+    /// stripe over with confidence in one frame while the frames around it, ambiguous row by row, were coded right by
+    /// their segments.
     pub overrule_segment_votes: usize,
 }
 
@@ -329,8 +330,9 @@ impl Default for TemporalParams {
 /// track supports are then dropped
 /// where the overruled labels break the row's order (a sheet's dim tail read as a stripe), and if two supported labels
 /// conflict nothing is overruled. Labels the segment vote gave count for less: at least
-/// [`TemporalParams::overrule_segment_votes`] of them, before and after, overrule a settled label when no other frame's
-/// row settled another (a band of rows misread with confidence in one frame, ambiguous in the others). Where the row's
+/// [`TemporalParams::overrule_segment_votes`] of them (a settled label of the track's counting two), before and
+/// after or from the one side there is, overrule a settled label when no other frame's row settled another (a band
+/// of rows misread with confidence in one frame, ambiguous in the others). Where the row's
 /// order leaves a point one label alone (its labelled neighbours are that label less and more one), a weaker agreement
 /// of its track is enough: its most agreed label, coded by at least `min_votes` settled points before and after the
 /// frame, whatever their share (a track cut short by a bump's flank, or sharing a frame's misreading): a dropped point
@@ -494,23 +496,29 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
                 (c >= params.min_votes && first < k && last > k).then_some(w)
             };
-            // The label the segment vote gave the track's points in frames before and after this one, when at least
-            // `overrule_segment_votes` of them agree, 90% of its segment-given labels, and no other frame's row
-            // settled another label.
+            // The label the segment vote gave the track's points, when their weight reaches
+            // `overrule_segment_votes` — each segment-given label counting one and each label a row settled for it
+            // two (a settled label is worth two of its segment's: `overrule_segment_votes` is twice
+            // `overrule_votes`) — 90% of its segment-given labels agree, and no other frame's row settled another
+            // label; in frames before and after this one, or from the one side there is where the track starts or
+            // ends (as settled labels overrule: in frame 15 of the demo, stripe 2 about to vanish over the step's
+            // edge was read as 1 with confidence in its last frame, its track coded 2 by the segments and by a few
+            // settled rows in the frames before).
             let segment_winner = |i: usize| -> Option<u16> {
                 let root = roots[offsets[k] + i];
                 let v = segment_votes.get(&root)?;
                 let &(w, c, first, last) = v.iter().max_by_key(|x| x.1)?;
                 let all: usize = v.iter().map(|x| x.1).sum();
-                let settled_other: usize = votes
-                    .get(&root)
-                    .map_or(0, |sv| sv.iter().filter(|x| x.0 != w).map(|x| x.1).sum());
+                let settled = |same: bool| -> usize {
+                    votes.get(&root).map_or(0, |sv| {
+                        sv.iter().filter(|x| (x.0 == w) == same).map(|x| x.1).sum()
+                    })
+                };
                 (params.overrule_segment_votes > 0
-                    && c >= params.overrule_segment_votes
-                    && first < k
-                    && last > k
+                    && c + 2 * settled(true) >= params.overrule_segment_votes
+                    && (first < k || last > k)
                     && (c as f64) >= params.min_share * all as f64
-                    && settled_other <= 1)
+                    && settled(false) <= 1)
                     .then_some(w)
             };
             // The one label the row's order leaves point j (between its labelled neighbours in `labels`).
@@ -2130,6 +2138,35 @@ mod temporal_tests {
         let mut f = setup(Some(11));
         assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
         assert_eq!(f[6].coding.stripes, vec![Some(1), Some(2), Some(3)]);
+    }
+
+    #[test]
+    fn segment_coded_and_settled_frames_together_overrule_a_tracks_last_frame() {
+        // n frames whose rows were ambiguous and coded (right) by their segments, `settled` of them (the frames
+        // before the last) settled right by their rows, and the last frame's row read every stripe one over with
+        // confidence (a sheet about to vanish over an edge): no frame after it.
+        let setup = |n: usize, settled: usize| {
+            let mut f = frames(n, 0.2);
+            let last = n - 1;
+            for (k, frame) in f.iter_mut().enumerate() {
+                frame.coding.row_confident = vec![k == last || k + 1 + settled > last; 3];
+                if k == last {
+                    frame.coding.stripes = vec![Some(1), Some(2), Some(3)];
+                }
+            }
+            f
+        };
+        // 12 segment-coded frames before it: overruled from the one side there is.
+        let mut f = setup(13, 0);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 3);
+        assert_eq!(f[12].coding.stripes, vec![Some(0), Some(1), Some(2)]);
+        // 9 segment-coded and 2 settled frames (9 + 2 x 2 = 13): overruled; 11 segment-coded alone are not enough.
+        let mut f = setup(12, 2);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 3);
+        assert_eq!(f[11].coding.stripes, vec![Some(0), Some(1), Some(2)]);
+        let mut f = setup(12, 0);
+        assert_eq!(reconcile(&mut f, &TemporalParams::default()), 0);
+        assert_eq!(f[11].coding.stripes, vec![Some(1), Some(2), Some(3)]);
     }
 
     #[test]
