@@ -1130,6 +1130,9 @@ pub fn reference_heights(
 /// number of cells set to NaN.
 pub fn remove_outliers(range: &mut RangeImage, limit_mm: f64) -> usize {
     let (w, h) = (range.width, range.height);
+    if w == 0 || h == 0 || range.z.len() != w * h {
+        return 0;
+    }
     let limit = limit_mm as f32;
     let z = range.z.clone();
     let mut removed = 0;
@@ -1138,21 +1141,36 @@ pub fn remove_outliers(range: &mut RangeImage, limit_mm: f64) -> usize {
     // a time without branches (vectorised).
     let differs = |a: f32, b: f32| a.is_finite() & b.is_finite() & ((a - b).abs() > limit);
     let mut rough = vec![false; w * h];
+    // The differences of horizontal neighbours of a row, then the flags from them: two passes without a dependence
+    // from one cell to the next (one pass that sets both cells of each pair does not vectorise).
+    let mut pair = vec![false; w.saturating_sub(1)];
     for j in 0..h {
         let row = &z[j * w..(j + 1) * w];
+        for (d, (a, b)) in pair.iter_mut().zip(row.iter().zip(&row[1..])) {
+            *d = differs(*a, *b);
+        }
         let flags = &mut rough[j * w..(j + 1) * w];
-        for i in 1..w {
-            let d = differs(row[i - 1], row[i]);
-            flags[i - 1] |= d;
-            flags[i] |= d;
+        if let (Some(first), Some(last)) = (pair.first(), pair.last()) {
+            flags[0] |= *first;
+            flags[w - 1] |= *last;
+        }
+        for (f, (l, r)) in flags[1..w.saturating_sub(1).max(1)]
+            .iter_mut()
+            .zip(pair.iter().zip(pair.iter().skip(1)))
+        {
+            *f |= *l | *r;
         }
         if j > 0 {
             let (above, here) = rough[(j - 1) * w..(j + 1) * w].split_at_mut(w);
             let up = &z[(j - 1) * w..j * w];
-            for i in 0..w {
-                let d = differs(up[i], row[i]);
-                above[i] |= d;
-                here[i] |= d;
+            for ((a, hh), (u, r)) in above
+                .iter_mut()
+                .zip(here.iter_mut())
+                .zip(up.iter().zip(row))
+            {
+                let d = differs(*u, *r);
+                *a |= d;
+                *hh |= d;
             }
         }
     }
@@ -1775,7 +1793,16 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (rng >> 33) as u32
         };
-        for (w, h) in [(1, 7), (7, 1), (2, 2), (13, 9), (40, 31)] {
+        for (w, h) in [
+            (0, 4),
+            (4, 0),
+            (1, 7),
+            (7, 1),
+            (2, 2),
+            (3, 11),
+            (13, 9),
+            (40, 31),
+        ] {
             for _ in 0..20 {
                 let z: Vec<f32> = (0..w * h)
                     .map(|k| match next() % 20 {
