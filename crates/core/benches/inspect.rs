@@ -74,11 +74,9 @@ fn inspect_80x60mm_at_0_1mm(b: divan::Bencher) {
     });
 }
 
-/// The same part against a golden scan of a good one (registration, then the golden heights within the
-/// registration's tolerance as the reference) instead of a fitted plane, scanned at 0.5 mm per frame (the golden
-/// scan's walls reach a travel step along x).
-#[divan::bench]
-fn inspect_80x60mm_at_0_1mm_against_golden(b: divan::Bencher) {
+/// Times inspecting the part against a golden scan of a good one, prepared once (`prepare`) or as it is, scanned at
+/// 0.5 mm per frame (the golden scan's walls reach a travel step along x).
+fn bench_golden(b: divan::Bencher, prepare: bool) {
     let r = part();
     let golden = part_with(false);
     let mut rules = SurfaceRules::shipped().expect("rules");
@@ -87,37 +85,30 @@ fn inspect_80x60mm_at_0_1mm_against_golden(b: divan::Bencher) {
         travel_step_mm: Some(0.5),
         ..DetectParams::default()
     };
+    let prepared = prepare
+        .then(|| PreparedGolden::new(&golden, dp.outlier_mm, cp.belt_level_mm, dp.travel_step_mm));
     b.bench_local(|| {
-        let i =
-            inspect(&r, ReferenceSource::Golden(&golden), &cp, &mut rules, &dp).expect("inspect");
+        let source = match &prepared {
+            Some(p) => ReferenceSource::Prepared(p),
+            None => ReferenceSource::Golden(&golden),
+        };
+        let i = inspect(&r, source, &cp, &mut rules, &dp).expect("inspect");
         divan::black_box(i)
     });
+}
+
+/// The same part against a golden scan of a good one (registration, then the golden heights within the
+/// registration's tolerance as the reference) instead of a fitted plane.
+#[divan::bench]
+fn inspect_80x60mm_at_0_1mm_against_golden(b: divan::Bencher) {
+    bench_golden(b, false);
 }
 
 /// The same against the golden scan prepared once (cleaned, its wall spans mapped: `PreparedGolden`), as a line
 /// inspecting many parts of one product does: the per-part cost.
 #[divan::bench]
 fn inspect_80x60mm_at_0_1mm_against_prepared_golden(b: divan::Bencher) {
-    let r = part();
-    let golden = part_with(false);
-    let mut rules = SurfaceRules::shipped().expect("rules");
-    let cp = CharacterizeParams::default();
-    let dp = DetectParams {
-        travel_step_mm: Some(0.5),
-        ..DetectParams::default()
-    };
-    let prepared = PreparedGolden::new(&golden, dp.outlier_mm, cp.belt_level_mm, dp.travel_step_mm);
-    b.bench_local(|| {
-        let i = inspect(
-            &r,
-            ReferenceSource::Prepared(&prepared),
-            &cp,
-            &mut rules,
-            &dp,
-        )
-        .expect("inspect");
-        divan::black_box(i)
-    });
+    bench_golden(b, true);
 }
 
 /// Registration alone (the golden inspection's first step).
