@@ -453,13 +453,13 @@ impl RangeGrid {
     }
 
     /// Adds the profiles of a scan, in frame order. Each stripe and image row is a track of samples along x (one a
-    /// frame); between two consecutive samples of a track that are close enough (at most [`MAX_FILL_FRAMES`]
+    /// frame); between two consecutive samples of a track that are close enough (at most `MAX_FILL_FRAMES`
     /// frames, `max_fill_mm` and `max_fill_step_mm` apart) the cells strictly between them are filled by the cubic
     /// through those two samples and one more on each side (in x), or the quadratic or straight line through those
     /// of them that are linked the same way. A straight chord cuts the top of a bump: with samples h apart it lies
     /// `f'' t (h − t) / 2` below a surface of curvature f'' at t from a sample, on average `f'' h² / 12` (0.019 mm
     /// on a 2 mm bump's top at 0.5 mm a frame); the cubic's error is of fourth order. A neighbour less than half the
-    /// interval away is left out, and where the curve would leave the chord by more than [`MAX_BOW_MM`] (more than
+    /// interval away is left out, and where the curve would leave the chord by more than `MAX_BOW_MM` (more than
     /// a smooth surface bends between samples) the chord is used.
     pub fn accumulate(&mut self, profiles: &[Profile]) {
         let tracks = Tracks::of(profiles);

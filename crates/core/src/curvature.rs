@@ -337,7 +337,7 @@ pub const PASSES: usize = 3;
 
 /// Corrects the heights of `profiles` for the curvature bias and returns their range image on a grid of `params`
 /// (as [`RangeGrid::accumulate`] makes it) and the number of points corrected. The points where the uncorrected
-/// range image is curved (at least [`MIN_CURVATURE`] along x or across) are corrected, each pass estimating the
+/// range image is curved (at least `MIN_CURVATURE` along x or across) are corrected, each pass estimating the
 /// surface's derivatives from the latest range image and setting every such point to its measured height less the
 /// bias predicted there (points where the model does not hold keep their measured height); the range image takes
 /// back only the tracks of the points that moved ([`RangeGrid::update`]).

@@ -172,7 +172,7 @@ pub struct DetectParams {
     pub min_region_travel_steps: f64,
     /// Conveyor travel between frames, mm (the sampling step along x), when known. The last sample before a hole
     /// lies anywhere up to a step short of its rim, and the first after it as far beyond: a hole's measured area
-    /// is corrected by the expected excess on each side that ends on measured surface ([`hole_area`]).
+    /// is corrected by the expected excess on each side that ends on measured surface (`hole_area`).
     pub travel_step_mm: Option<f64>,
 }
 
