@@ -1986,12 +1986,16 @@ mod tests {
         r
     }
 
-    fn run(r: &RangeImage) -> Detection {
+    /// The characterization maps of `r` against its fitted plane.
+    fn plane_maps(r: &RangeImage) -> SurfaceMaps {
         let p = CharacterizeParams::default();
         let reference = fit_reference(r, &p).expect("fit");
-        let maps = surface_maps(r, reference.heights(r), &p).expect("maps");
+        surface_maps(r, reference.heights(r), &p).expect("maps")
+    }
+
+    fn run(r: &RangeImage) -> Detection {
         let mut rules = SurfaceRules::shipped().expect("rules");
-        detect(r, &maps, &mut rules, &DetectParams::default()).expect("detect")
+        detect(r, &plane_maps(r), &mut rules, &DetectParams::default()).expect("detect")
     }
 
     #[test]
@@ -2191,9 +2195,7 @@ mod tests {
                 Some(0.0)
             }
         });
-        let p = CharacterizeParams::default();
-        let reference = fit_reference(&r, &p).expect("fit");
-        let maps = surface_maps(&r, reference.heights(&r), &p).expect("maps");
+        let maps = plane_maps(&r);
         let mut rules = SurfaceRules::shipped().expect("rules");
         let mut holes = |step: Option<f64>| {
             let params = DetectParams {
@@ -2232,9 +2234,7 @@ mod tests {
             };
             Some(frame + 0.2 * bell((x - 8.0).hypot(y + 3.0), 1.0))
         });
-        let p = CharacterizeParams::default();
-        let reference = fit_reference(&r, &p).expect("fit");
-        let maps = surface_maps(&r, reference.heights(&r), &p).expect("maps");
+        let maps = plane_maps(&r);
         let mut rules = SurfaceRules::shipped().expect("rules");
         let mut found = |step: Option<f64>, steps: f64| {
             let params = DetectParams {
