@@ -22,6 +22,7 @@ fn part_with(defects: bool) -> RangeImage {
         width: w,
         height: h,
         z: vec![0.0; w * h],
+        intensity: None,
     };
     for j in 0..h {
         for i in 0..w {

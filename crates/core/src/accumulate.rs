@@ -150,6 +150,12 @@ pub struct RangeImage {
     pub height: usize,
     /// Heights, row-major, mm.
     pub z: Vec<f32>,
+    /// The stripes' peak intensity (grey levels) in each cell that holds a height, row-major like `z` (NaN
+    /// elsewhere): the mean of the samples in a cell, and between the samples of a stripe along x the straight line
+    /// between theirs. `None` where the range image does not say (one from elsewhere). A laser profiler's intensity
+    /// image, registered with the heights; inspection also reads partly lit sheets at a hole's rim from it
+    /// ([`crate::detect`]).
+    pub intensity: Option<Vec<f32>>,
 }
 
 impl RangeImage {
@@ -228,6 +234,7 @@ struct Sample {
     x: f64,
     y: f64,
     z: f64,
+    intensity: f64,
 }
 
 /// The polynomial through up to four nodes (distinct x) in Newton's form: its divided differences are worked out
@@ -366,6 +373,7 @@ impl Sample {
             x: p.x_mm,
             y: p.y_mm,
             z: p.z_mm,
+            intensity: f64::from(p.intensity),
         }
     }
 }
@@ -378,6 +386,8 @@ pub struct RangeGrid {
     width: usize,
     height: usize,
     sum: Vec<f64>,
+    /// Sums of the samples' intensities, like `sum`.
+    intensity: Vec<f64>,
     count: Vec<u32>,
     /// The tracks the grid holds when one scan was accumulated on it (for [`RangeGrid::update`]).
     held: Option<Tracks>,
@@ -430,6 +440,7 @@ impl RangeGrid {
             width,
             height,
             sum: vec![0.0; width * height],
+            intensity: vec![0.0; width * height],
             count: vec![0; width * height],
             held: None,
             used: false,
@@ -437,7 +448,7 @@ impl RangeGrid {
     }
 
     #[inline]
-    fn add(&mut self, x: f64, y: f64, z: f64, sign: i32) {
+    fn add(&mut self, x: f64, y: f64, z: f64, intensity: f64, sign: i32) {
         let Some(k) = cell_index(
             self.origin,
             self.params.spacing_mm,
@@ -449,6 +460,7 @@ impl RangeGrid {
             return;
         };
         self.sum[k] += f64::from(sign) * z;
+        self.intensity[k] += f64::from(sign) * intensity;
         self.count[k] = self.count[k].wrapping_add_signed(sign);
     }
 
@@ -523,6 +535,7 @@ impl RangeGrid {
         }
         if afresh {
             self.sum.fill(0.0);
+            self.intensity.fill(0.0);
             self.count.fill(0);
             changed = (0..held.len()).collect();
         }
@@ -535,6 +548,7 @@ impl RangeGrid {
     /// Empties the grid and accumulates `profiles`, keeping their tracks.
     fn refill(&mut self, profiles: &[Profile]) {
         self.sum.fill(0.0);
+        self.intensity.fill(0.0);
         self.count.fill(0);
         self.used = false;
         self.accumulate_to_update(profiles);
@@ -543,7 +557,7 @@ impl RangeGrid {
     /// Adds (`SIGN` 1) or takes back (−1) one track: its samples and the cells filled between them.
     fn add_track<const SIGN: i32>(&mut self, t: &[Sample]) {
         for (i, s) in t.iter().enumerate() {
-            self.add(s.x, s.y, s.z, SIGN);
+            self.add(s.x, s.y, s.z, s.intensity, SIGN);
             if i + 1 < t.len() && self.linked(s, &t[i + 1]) {
                 let before = (i > 0 && self.linked(&t[i - 1], s)).then(|| &t[i - 1]);
                 let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
@@ -604,20 +618,15 @@ impl RangeGrid {
             } else {
                 chord
             };
-            self.add(x, a.y + t * (b.y - a.y), z, sign);
+            let intensity = a.intensity + t * (b.intensity - a.intensity);
+            self.add(x, a.y + t * (b.y - a.y), z, intensity, sign);
         }
     }
 
-    /// The range image: the mean height of each cell.
+    /// The range image: the mean height and intensity of each cell.
     pub fn image(&self) -> RangeImage {
-        RangeImage {
-            origin_mm: self.origin,
-            spacing_mm: self.params.spacing_mm,
-            width: self.width,
-            height: self.height,
-            z: self
-                .sum
-                .iter()
+        let mean = |sums: &[f64]| -> Vec<f32> {
+            sums.iter()
                 .zip(&self.count)
                 .map(|(&s, &c)| {
                     if c == 0 {
@@ -626,7 +635,15 @@ impl RangeGrid {
                         (s / f64::from(c)) as f32
                     }
                 })
-                .collect(),
+                .collect()
+        };
+        RangeImage {
+            origin_mm: self.origin,
+            spacing_mm: self.params.spacing_mm,
+            width: self.width,
+            height: self.height,
+            z: mean(&self.sum),
+            intensity: Some(mean(&self.intensity)),
         }
     }
 }
@@ -674,6 +691,44 @@ mod tests {
         for f in [0.0, 0.5, 0.999_999_999, 1.0, 840.0, 840.999, 4.5e15] {
             assert_eq!(floor_index(f), f as usize);
         }
+    }
+
+    #[test]
+    fn intensities_are_registered_with_the_heights() {
+        // Two samples 1 mm apart of one stripe and row, 100 and 50 grey levels, and a third across a step.
+        let mut profiles = vec![
+            prof(0, &[(0.0, 0.0, 1.0)]),
+            prof(1, &[(1.0, 0.0, 1.0)]),
+            prof(2, &[(2.0, 0.0, 5.0)]),
+        ];
+        for (p, i) in profiles.iter_mut().zip([100.0, 50.0, 80.0]) {
+            p.points[0].intensity = i;
+        }
+        let params = RangeParams {
+            spacing_mm: [0.25, 0.25],
+            ..RangeParams::default()
+        };
+        let mut g = RangeGrid::covering(&profiles, params).expect("grid");
+        g.accumulate(&profiles);
+        let r = g.image();
+        let intensity = r.intensity.as_deref().expect("intensities");
+        assert_eq!(intensity.len(), r.z.len());
+        let at = |x: f64| {
+            let k = cell_index(r.origin_mm, r.spacing_mm, r.width, r.height, x, 0.0).expect("cell");
+            intensity[k]
+        };
+        assert_eq!(at(0.0), 100.0);
+        assert_eq!(at(1.0), 50.0);
+        // Between the samples, the straight line between theirs; nothing across the step, as for the heights.
+        assert!((at(0.5) - 75.0).abs() < 1e-4, "{}", at(0.5));
+        assert!(at(1.5).is_nan());
+        assert_eq!(at(2.0), 80.0);
+        // Where there is no height there is no intensity, and the other way round.
+        assert!(
+            r.z.iter()
+                .zip(intensity)
+                .all(|(z, i)| z.is_finite() == i.is_finite())
+        );
     }
 
     #[test]

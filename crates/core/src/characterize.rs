@@ -1500,6 +1500,7 @@ mod tests {
             width: w,
             height: h,
             z: vec![0.0; w * h],
+            intensity: None,
         };
         for j in 0..h {
             for i in 0..w {
@@ -1819,6 +1820,7 @@ mod tests {
                     width: w,
                     height: h,
                     z,
+                    intensity: None,
                 };
                 let (mut fast, mut plain) = (r.clone(), r.clone());
                 let n = remove_outliers(&mut fast, 1.0);

@@ -425,6 +425,7 @@ mod tests {
             width: n,
             height: n,
             z,
+            intensity: None,
         }
     }
 

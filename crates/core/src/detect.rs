@@ -1780,10 +1780,23 @@ fn measure_bell(
     ];
 }
 
+/// A measured cell beside a hole's gap holds a partly lit sheet when its intensity is below this fraction of the
+/// intensity along its grid row beyond it ([`RIM_REFERENCE_MM`]; the same stripe on the same surface a few frames
+/// away). A sheet (`laser.sigma_mm` wide) whose centre has passed the rim still lights the surface up to the rim:
+/// the part of its profile left is dim, its sample sits at the rim, and the gap there is not a travel step's
+/// sampling short of it. Its peak falls below half the whole sheet's once the centre lies more than 1.18 sigma
+/// beyond the rim.
+pub const RIM_PARTIAL_FRACTION: f32 = 0.5;
+/// How far along its grid row, beyond a gap's end, the intensity a rim cell is compared with is taken (the median of
+/// the measured cells there), mm: about four samples at 0.5 mm a frame.
+pub const RIM_REFERENCE_MM: f64 = 2.0;
+
 /// The area of a gap (cells of the range image), mm², corrected for the sampling along x when the travel step is
 /// known: on each grid row, a run of gap cells that ends on measured surface ends on average half a step minus
 /// half a cell outside the true edge (the last sample before the edge lies uniformly within one step of it, and a
-/// sample's cell reaches half a cell beyond it), so the run is shortened by that much at each such end.
+/// sample's cell reaches half a cell beyond it), so the run is shortened by that much at each such end — unless the
+/// range image's intensities show that end's cell to hold a partly lit sheet ([`RIM_PARTIAL_FRACTION`]), which sits
+/// at the rim itself.
 fn hole_area(range: &RangeImage, cells: &[usize], travel_step_mm: Option<f64>) -> f64 {
     let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
     let raw = cells.len() as f64 * cell_area;
@@ -1797,6 +1810,38 @@ fn hole_area(range: &RangeImage, cells: &[usize], travel_step_mm: Option<f64>) -
     }
     let w = range.width;
     let measured = |i: usize, j: usize| range.z[j * w + i].is_finite();
+    let intensity = range
+        .intensity
+        .as_deref()
+        .filter(|v| v.len() == range.z.len());
+    let reach = (RIM_REFERENCE_MM / dx).round().max(1.0) as usize;
+    let mut around = Vec::new();
+    // Whether the measured cell (i, j), a gap's end, holds a partly lit sheet: dimmer than the cells beyond it along
+    // the row (`dir` +1 or -1, away from the gap) by more than `RIM_PARTIAL_FRACTION`.
+    let mut partial = |i: usize, j: usize, dir: isize| -> bool {
+        let Some(v) = intensity else {
+            return false;
+        };
+        let at = v[j * w + i];
+        around.clear();
+        let mut c = i as isize;
+        for _ in 0..reach {
+            c += dir;
+            if c < 0 || c >= w as isize || !measured(c as usize, j) {
+                break;
+            }
+            let x = v[j * w + c as usize];
+            if x.is_finite() {
+                around.push(x);
+            }
+        }
+        if around.len() < reach / 2 || !at.is_finite() {
+            return false;
+        }
+        let mid = around.len() / 2;
+        let reference = *around.select_nth_unstable_by(mid, f32::total_cmp).1;
+        at < RIM_PARTIAL_FRACTION * reference
+    };
     let mut sorted = cells.to_vec();
     sorted.sort_unstable();
     let mut total = 0.0;
@@ -1810,10 +1855,26 @@ fn hole_area(range: &RangeImage, cells: &[usize], travel_step_mm: Option<f64>) -
             i1 += 1;
         }
         k += 1;
-        let ends = usize::from(i0 > 0 && measured(i0 - 1, j))
-            + usize::from(i1 + 1 < w && measured(i1 + 1, j));
+        // Cells to take off at an end: the expected excess after a full sheet's sample; half a cell back on after a
+        // partly lit one's (its sample sits at the rim, and its cell reaches half a cell into the hole).
+        let mut end = |i: usize, dir: isize| -> f64 {
+            if !measured(i, j) {
+                0.0
+            } else if partial(i, j, dir) {
+                -0.5
+            } else {
+                excess
+            }
+        };
+        let mut cut = 0.0;
+        if i0 > 0 {
+            cut += end(i0 - 1, -1);
+        }
+        if i1 + 1 < w {
+            cut += end(i1 + 1, 1);
+        }
         let len = (i1 - i0 + 1) as f64;
-        total += (len - ends as f64 * excess).max(0.0);
+        total += (len - cut).max(0.0);
     }
     total * cell_area
 }
@@ -1882,6 +1943,51 @@ mod tests {
             corrected_err.abs() < 0.03,
             "corrected {corrected_err}, raw {raw_err}"
         );
+    }
+
+    #[test]
+    fn a_partly_lit_sheet_at_a_rim_is_not_taken_for_a_travel_steps_sampling() {
+        // One grid row of 0.1 mm cells: plate, a gap of 20 cells, plate; 100 grey levels everywhere but the cell
+        // left of the gap (a partly lit sheet's sample, 30) when `dim`. Travel step 0.5 mm: a full sheet's end
+        // loses (0.5 - 0.1) / 2 = 0.2 mm = 2 cells.
+        let row = |dim: bool, intensities: bool| {
+            let w = 60;
+            let mut z = vec![10.0f32; w];
+            let mut i = vec![100.0f32; w];
+            for k in 20..40 {
+                z[k] = f32::NAN;
+                i[k] = f32::NAN;
+            }
+            if dim {
+                i[19] = 30.0;
+            }
+            RangeImage {
+                origin_mm: [0.0, 0.0],
+                spacing_mm: [0.1, 0.1],
+                width: w,
+                height: 1,
+                z,
+                intensity: intensities.then_some(i),
+            }
+        };
+        let gap: Vec<usize> = (20..40).collect();
+        let cells = |r: &RangeImage| hole_area(r, &gap, Some(0.5)) / 0.01;
+        // Two full ends: 20 - 2 - 2 cells.
+        assert!((cells(&row(false, true)) - 16.0).abs() < 1e-9);
+        // A partly lit sheet at the left rim: no excess there, and half its cell back (it reaches into the hole).
+        assert!(
+            (cells(&row(true, true)) - 18.5).abs() < 1e-9,
+            "{}",
+            cells(&row(true, true))
+        );
+        // Without intensities nothing tells: both ends are full sheets'.
+        assert!((cells(&row(true, false)) - 16.0).abs() < 1e-9);
+        // A dim cell whose row holds too little beyond it to compare with is taken as a full sheet's.
+        let mut short = row(true, true);
+        for k in 0..15 {
+            short.z[k] = f32::NAN;
+        }
+        assert!((cells(&short) - 16.0).abs() < 1e-9, "{}", cells(&short));
     }
 
     const NEIGHBOURS8: [(i64, i64); 8] = [
@@ -1966,6 +2072,7 @@ mod tests {
             width: w,
             height: h,
             z: vec![0.0; w * h],
+            intensity: None,
         };
         for j in 0..h {
             for i in 0..w {
@@ -2345,6 +2452,7 @@ mod tests {
             width: 10,
             height: 10,
             z: vec![f32::NAN; 100],
+            intensity: None,
         };
         let p = CharacterizeParams::default();
         assert!(fit_reference(&empty, &p).is_err());

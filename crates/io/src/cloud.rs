@@ -1,5 +1,6 @@
 //! Scan outputs: the point cloud as binary little-endian PLY, and the range image as float32 TIFF with a JSON
-//! description, a 16-bit PNG preview (its scale in the JSON) and a colour-mapped PNG for people.
+//! description, a 16-bit PNG preview (its scale in the JSON) and a colour-mapped PNG for people; with it the
+//! intensity image (the stripes' peak intensity in each cell) as float32 TIFF and an 8-bit PNG preview.
 
 use crate::images::{height_preview, write_f32_tiff, write_rgb_png};
 use crate::{IoError, write_atomic};
@@ -33,7 +34,9 @@ pub fn write_ply(path: &Path, profiles: &[Profile]) -> Result<usize, IoError> {
 }
 
 /// Writes `range.tiff`, `range.json`, `range.png` (16-bit: 0 = not measured, 1..65535 linear in height) and
-/// `range-colour.png` into `dir`; `extra` is merged into the JSON.
+/// `range-colour.png` into `dir`, and when the range image carries intensities `intensity.tiff` (float32 grey
+/// levels, NaN where nothing was measured) and `intensity.png` (8-bit: 0 = not measured, 1..255 linear from 0 to
+/// the brightest cell), named in the JSON's `intensity`; `extra` is merged into the JSON.
 pub fn write_range(
     dir: &Path,
     range: &RangeImage,
@@ -97,6 +100,50 @@ pub fn write_range(
         },
         "colour_preview": "range-colour.png",
     });
+    if let Some(intensity) = range.intensity.as_deref().filter(|i| i.len() == w * h) {
+        write_f32_tiff(&dir.join("intensity.tiff"), w, h, intensity)?;
+        let brightest = intensity
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .fold(0.0f32, f32::max);
+        let scale = 254.0 / f64::from(brightest.max(1e-6));
+        let levels: Vec<u8> = intensity
+            .iter()
+            .map(|&v| {
+                if v.is_finite() {
+                    (1.0 + (f64::from(v.max(0.0)) * scale).round()).clamp(1.0, 255.0) as u8
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let mut png = Vec::new();
+        PngEncoder::new(Cursor::new(&mut png))
+            .write_image(&levels, w as u32, h as u32, ExtendedColorType::L8)
+            .map_err(|e| IoError::Image {
+                path: dir.join("intensity.png"),
+                message: format!("cannot encode: {e}"),
+            })?;
+        write_atomic(&dir.join("intensity.png"), &png)?;
+        if let Some(obj) = doc.as_object_mut() {
+            obj.insert(
+                "intensity".into(),
+                json!({
+                    "file": "intensity.tiff",
+                    "units": "grey levels: the stripes' peak intensity, registered with the heights",
+                    "missing": "NaN",
+                    "preview": {
+                        "file": "intensity.png",
+                        "bits": 8,
+                        "level_0": "not measured",
+                        "grey_levels": format!("(level - 1) * {}", 1.0 / scale),
+                        "grey_levels_per_level": 1.0 / scale,
+                    },
+                }),
+            );
+        }
+    }
     if let (Some(obj), serde_json::Value::Object(more)) = (doc.as_object_mut(), extra) {
         obj.extend(more);
     }
@@ -145,6 +192,7 @@ mod tests {
             width: 3,
             height: 2,
             z: vec![1.0, f32::NAN, 2.0, 3.0, 1.5, f32::NAN],
+            intensity: None,
         };
         write_range(dir.path(), &r, json!({"frames": 4})).expect("write");
         let doc: serde_json::Value = serde_json::from_str(

@@ -104,24 +104,64 @@ pub fn range_from_json(json_path: &Path, text: &str) -> Result<RangeImage, IoErr
     }
     let origin_mm = pair("origin_mm", false)?;
     let spacing_mm = pair("spacing_mm", true)?;
-    let file = doc
-        .get("file")
-        .and_then(serde_json::Value::as_str)
-        .filter(|f| !f.is_empty() && !f.contains(['/', '\\']))
-        .ok_or_else(|| {
-            invalid(
-                json_path,
-                "file",
-                "must name the TIFF beside the JSON (e.g. \"range.tiff\")",
-            )
-        })?;
-    let tiff_path = json_path.parent().unwrap_or(Path::new(".")).join(file);
-    let bytes = std::fs::read(&tiff_path).map_err(|source| IoError::Read {
-        path: tiff_path.clone(),
+    let dir = json_path.parent().unwrap_or(Path::new("."));
+    let layer = |field: &str, value: Option<&serde_json::Value>| -> Result<PathBuf, IoError> {
+        value
+            .and_then(serde_json::Value::as_str)
+            .filter(|f| !f.is_empty() && !f.contains(['/', '\\']))
+            .map(|f| dir.join(f))
+            .ok_or_else(|| {
+                invalid(
+                    json_path,
+                    field,
+                    "must name the TIFF beside the JSON (e.g. \"range.tiff\")",
+                )
+            })
+    };
+    let z = read_layer(
+        &layer("file", doc.get("file"))?,
+        json_path,
+        width,
+        height,
+        "heights in mm",
+    )?;
+    // The intensity image, when the JSON names one (`stripe3d scan` writes it; a range image from elsewhere may not
+    // have one).
+    let intensity = match doc.get("intensity") {
+        None | Some(serde_json::Value::Null) => None,
+        Some(v) => Some(read_layer(
+            &layer("intensity.file", v.get("file"))?,
+            json_path,
+            width,
+            height,
+            "grey levels",
+        )?),
+    };
+    Ok(RangeImage {
+        origin_mm,
+        spacing_mm,
+        width,
+        height,
+        z,
+        intensity,
+    })
+}
+
+/// One float32 layer of a range image (`width` x `height`, finite values and NaN), as the JSON at `json_path`
+/// describes it.
+fn read_layer(
+    tiff_path: &Path,
+    json_path: &Path,
+    width: usize,
+    height: usize,
+    what: &str,
+) -> Result<Vec<f32>, IoError> {
+    let bytes = std::fs::read(tiff_path).map_err(|source| IoError::Read {
+        path: tiff_path.to_path_buf(),
         source,
     })?;
     let bad = |m: String| IoError::Image {
-        path: tiff_path.clone(),
+        path: tiff_path.to_path_buf(),
         message: m,
     };
     let mut dec = tiff::decoder::Decoder::new(std::io::Cursor::new(bytes))
@@ -135,31 +175,25 @@ pub fn range_from_json(json_path: &Path, text: &str) -> Result<RangeImage, IoErr
             json_path.display()
         )));
     }
-    let z = match dec
+    let v = match dec
         .read_image()
         .map_err(|e| bad(format!("cannot decode: {e}")))?
     {
         tiff::decoder::DecodingResult::F32(v) => v,
-        _ => return Err(bad("must be one channel of float32 heights in mm".into())),
+        _ => return Err(bad(format!("must be one channel of float32 {what}"))),
     };
-    if z.len() != width * height {
+    if v.len() != width * height {
         return Err(bad(format!(
             "{} samples for {width}x{height} cells: one float32 channel is expected",
-            z.len()
+            v.len()
         )));
     }
-    if z.iter().any(|v| v.is_infinite()) {
-        return Err(bad(
-            "holds infinite heights (only finite values and NaN are allowed)".into(),
-        ));
+    if v.iter().any(|x| x.is_infinite()) {
+        return Err(bad(format!(
+            "holds infinite {what} (only finite values and NaN are allowed)"
+        )));
     }
-    Ok(RangeImage {
-        origin_mm,
-        spacing_mm,
-        width,
-        height,
-        z,
-    })
+    Ok(v)
 }
 
 /// Outline colour of a defect kind.
@@ -420,6 +454,7 @@ mod tests {
                 11.0,
                 12.0,
             ],
+            intensity: None,
         }
     }
 
@@ -433,6 +468,59 @@ mod tests {
         assert_eq!(back.spacing_mm, r.spacing_mm);
         assert_eq!((back.width, back.height), (4, 3));
         assert!(back.z[2].is_nan() && back.z[11] == 12.0);
+    }
+
+    #[test]
+    fn the_intensity_image_is_written_and_read_back_with_the_heights() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut r = sample();
+        r.intensity = Some(
+            r.z.iter()
+                .map(|z| if z.is_finite() { 10.0 * z } else { f32::NAN })
+                .collect(),
+        );
+        write_range(dir.path(), &r, serde_json::json!({})).expect("write");
+        let back = read_range(dir.path()).expect("read");
+        let i = back.intensity.expect("intensities");
+        assert!(i[2].is_nan() && i[0] == 10.0 && i[11] == 120.0);
+        // The 8-bit preview: 0 where nothing was measured, the brightest cell at 255.
+        let png = image::open(dir.path().join("intensity.png"))
+            .expect("png")
+            .to_luma8();
+        assert_eq!(png.dimensions(), (4, 3));
+        assert_eq!((png.as_raw()[2], png.as_raw()[11]), (0, 255));
+        // A range image without intensities writes none, and one whose JSON names none reads as none.
+        let plain = tempfile::tempdir().expect("tmp");
+        write_range(plain.path(), &sample(), serde_json::json!({})).expect("write");
+        assert!(!plain.path().join("intensity.tiff").exists());
+        assert_eq!(read_range(plain.path()).expect("read").intensity, None);
+        // A named intensity file that is missing, of another size or not a TIFF is refused by name.
+        let p = dir.path().join("range.json");
+        let good = std::fs::read_to_string(&p).expect("json");
+        std::fs::write(dir.path().join("other.tiff"), b"not a tiff").expect("write");
+        let cases = [
+            (
+                good.replace("\"file\": \"intensity.tiff\"", "\"file\": \"gone.tiff\""),
+                "gone.tiff",
+            ),
+            (
+                good.replace("\"file\": \"intensity.tiff\"", "\"file\": \"other.tiff\""),
+                "other.tiff",
+            ),
+            (
+                good.replace("\"file\": \"intensity.tiff\"", "\"file\": \"range.png\""),
+                "range.png",
+            ),
+            (
+                good.replace("\"file\": \"intensity.tiff\"", "\"file\": 3"),
+                "intensity.file",
+            ),
+        ];
+        for (text, needle) in cases {
+            assert_ne!(text, good, "{needle}: the case must change the file");
+            let e = range_from_json(&p, &text).expect_err(needle);
+            assert!(e.to_string().contains(needle), "{needle}: {e}");
+        }
     }
 
     #[test]

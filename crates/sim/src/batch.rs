@@ -199,6 +199,7 @@ pub fn ideal_range(
             width,
             height,
             z,
+            intensity: None,
         },
         truth,
     ))
