@@ -62,7 +62,7 @@ pub struct ScanArgs {
     /// Calibration written by `stripe3d calibrate`.
     #[arg(long)]
     pub calib: PathBuf,
-    /// Output folder: cloud.ply, range.tiff, range.json, range.png, range-colour.png.
+    /// Output folder: cloud.ply, range.tiff, range.json, range.png, range-colour.png, intensity.tiff, intensity.png.
     #[arg(long)]
     pub out: PathBuf,
     /// Frames in scan order: images (PNG, PGM, TIFF) or folders of them (taken in name order).
@@ -505,8 +505,13 @@ pub fn write_scan(
         res.range.measured()
     );
     println!(
-        "wrote {}: cloud.ply ({n} points), range.tiff + range.json, range.png (16-bit, scale in range.json), range-colour.png",
-        out.display()
+        "wrote {}: cloud.ply ({n} points), range.tiff + range.json, range.png (16-bit, scale in range.json), range-colour.png{}",
+        out.display(),
+        if res.range.intensity.is_some() {
+            ", intensity.tiff + intensity.png (the stripes' intensity, registered with the heights)"
+        } else {
+            ""
+        }
     );
     Ok(())
 }
