@@ -615,5 +615,31 @@ mod tests {
                 Err(e) => prop_assert!(e.to_string().contains("range."), "{}", e),
             }
         }
+
+        #[test]
+        fn damaged_intensity_tiffs_are_refused_by_name_or_read(
+            flips in proptest::collection::vec((0usize..4096, any::<u8>()), 1..4),
+            cut in proptest::option::of(0usize..4096),
+        ) {
+            let dir = tempfile::tempdir().expect("tmp");
+            let mut r = sample();
+            r.intensity = Some(r.z.iter().map(|z| 10.0 * z).collect());
+            write_range(dir.path(), &r, serde_json::json!({})).expect("write");
+            let tiff = dir.path().join("intensity.tiff");
+            let mut bytes = std::fs::read(&tiff).expect("tiff");
+            for (pos, byte) in flips {
+                let k = pos % bytes.len();
+                bytes[k] = byte;
+            }
+            if let Some(c) = cut {
+                bytes.truncate(c % (bytes.len() + 1));
+            }
+            std::fs::write(&tiff, &bytes).expect("write");
+            match read_range(dir.path()) {
+                Ok(r) => prop_assert!(r.intensity.is_some_and(|i| i.len() == 12
+                    && i.iter().all(|v| !v.is_infinite()))),
+                Err(e) => prop_assert!(e.to_string().contains("intensity.tiff"), "{}", e),
+            }
+        }
     }
 }
