@@ -33,6 +33,24 @@ pub fn write_ply(path: &Path, profiles: &[Profile]) -> Result<usize, IoError> {
     Ok(n)
 }
 
+/// Encodes `data` (`w` x `h` samples of `colour`, native byte order) as a PNG at `path`, atomically.
+fn write_png(
+    path: &Path,
+    data: &[u8],
+    w: usize,
+    h: usize,
+    colour: ExtendedColorType,
+) -> Result<(), IoError> {
+    let mut png = Vec::new();
+    PngEncoder::new(Cursor::new(&mut png))
+        .write_image(data, w as u32, h as u32, colour)
+        .map_err(|e| IoError::Image {
+            path: path.to_path_buf(),
+            message: format!("cannot encode: {e}"),
+        })?;
+    write_atomic(path, &png)
+}
+
 /// Writes `range.tiff`, `range.json`, `range.png` (16-bit: 0 = not measured, 1..65535 linear in height) and
 /// `range-colour.png` into `dir`, and when the range image carries intensities `intensity.tiff` (float32 grey
 /// levels, NaN where nothing was measured) and `intensity.png` (8-bit: 0 = not measured, 1..255 linear from 0 to
@@ -61,14 +79,13 @@ pub fn write_range(
             l.to_ne_bytes()
         })
         .collect();
-    let mut png = Vec::new();
-    PngEncoder::new(Cursor::new(&mut png))
-        .write_image(&levels, w as u32, h as u32, ExtendedColorType::L16)
-        .map_err(|e| IoError::Image {
-            path: dir.join("range.png"),
-            message: format!("cannot encode: {e}"),
-        })?;
-    write_atomic(&dir.join("range.png"), &png)?;
+    write_png(
+        &dir.join("range.png"),
+        &levels,
+        w,
+        h,
+        ExtendedColorType::L16,
+    )?;
     // height_preview draws rows along +y bottom-up; range rows run along −y, so hand them over reversed.
     let bottom_up: Vec<f32> = range.z.chunks(w).rev().flatten().copied().collect();
     write_rgb_png(
@@ -118,14 +135,13 @@ pub fn write_range(
                 }
             })
             .collect();
-        let mut png = Vec::new();
-        PngEncoder::new(Cursor::new(&mut png))
-            .write_image(&levels, w as u32, h as u32, ExtendedColorType::L8)
-            .map_err(|e| IoError::Image {
-                path: dir.join("intensity.png"),
-                message: format!("cannot encode: {e}"),
-            })?;
-        write_atomic(&dir.join("intensity.png"), &png)?;
+        write_png(
+            &dir.join("intensity.png"),
+            &levels,
+            w,
+            h,
+            ExtendedColorType::L8,
+        )?;
         if let Some(obj) = doc.as_object_mut() {
             obj.insert(
                 "intensity".into(),

@@ -577,6 +577,19 @@ mod tests {
         assert!(e.to_string().contains("spacing_mm"), "{e}");
     }
 
+    /// Overwrites bytes of the file at `path` (positions modulo its length) and cuts it short.
+    fn damage(path: &Path, flips: &[(usize, u8)], cut: Option<usize>) {
+        let mut bytes = std::fs::read(path).expect("file");
+        for &(pos, byte) in flips {
+            let k = pos % bytes.len();
+            bytes[k] = byte;
+        }
+        if let Some(c) = cut {
+            bytes.truncate(c % (bytes.len() + 1));
+        }
+        std::fs::write(path, &bytes).expect("write");
+    }
+
     proptest! {
         #[test]
         fn arbitrary_json_never_panics(text in ".{0,300}") {
@@ -600,16 +613,7 @@ mod tests {
         ) {
             let dir = tempfile::tempdir().expect("tmp");
             write_range(dir.path(), &sample(), serde_json::json!({})).expect("write");
-            let tiff = dir.path().join("range.tiff");
-            let mut bytes = std::fs::read(&tiff).expect("tiff");
-            for (pos, byte) in flips {
-                let k = pos % bytes.len();
-                bytes[k] = byte;
-            }
-            if let Some(c) = cut {
-                bytes.truncate(c % (bytes.len() + 1));
-            }
-            std::fs::write(&tiff, &bytes).expect("write");
+            damage(&dir.path().join("range.tiff"), &flips, cut);
             match read_range(dir.path()) {
                 Ok(r) => prop_assert!(r.z.len() == 12 && r.z.iter().all(|z| !z.is_infinite())),
                 Err(e) => prop_assert!(e.to_string().contains("range."), "{}", e),
@@ -625,16 +629,7 @@ mod tests {
             let mut r = sample();
             r.intensity = Some(r.z.iter().map(|z| 10.0 * z).collect());
             write_range(dir.path(), &r, serde_json::json!({})).expect("write");
-            let tiff = dir.path().join("intensity.tiff");
-            let mut bytes = std::fs::read(&tiff).expect("tiff");
-            for (pos, byte) in flips {
-                let k = pos % bytes.len();
-                bytes[k] = byte;
-            }
-            if let Some(c) = cut {
-                bytes.truncate(c % (bytes.len() + 1));
-            }
-            std::fs::write(&tiff, &bytes).expect("write");
+            damage(&dir.path().join("intensity.tiff"), &flips, cut);
             match read_range(dir.path()) {
                 Ok(r) => prop_assert!(r.intensity.is_some_and(|i| i.len() == 12
                     && i.iter().all(|v| !v.is_infinite()))),
