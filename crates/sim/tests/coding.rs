@@ -117,13 +117,14 @@ fn the_demo_part_with_holes_shadows_and_ghosts_is_coded() {
         t.right_rate(),
         t.coverage()
     );
-    // The target (>= 99.9 % right) is not met on this part. Stripes whose sheet just misses a corner light
-    // it with their beam's tail; those fragments run the whole length of the plate's edge, and the row labelling
-    // read them as one more stripe (80.4% right) until extraction marked cut profiles and coding let dim ones
-    // follow a stripe but not start one (93.3%). The rest: a step whose neighbouring stripes are hidden reads as
-    // well one stripe over. This guards the level measured.
-    assert!(t.right_rate() >= 0.92, "{t:?}");
-    assert!(t.coverage() >= 0.68, "{t:?}");
+    // The target: >= 99.9 % right. Stripes whose sheet just misses a corner light it with their beam's
+    // tail; those fragments run the whole length of the plate's edge, and the row labelling read them as one more
+    // stripe (80.4% right) until extraction marked cut profiles and coding let dim ones follow a stripe but not
+    // start one (93.3%). A step whose neighbouring stripes are hidden read as well one stripe over, until the rows
+    // preferred a level surface and alike neighbours (`CodingParams::tilt_cost_per_mm`, `surface_intensity_ratio`):
+    // 99.995% right, 94.0% of the points coded (was 70.2%).
+    assert!(t.right_rate() >= 0.999, "{t:?}");
+    assert!(t.coverage() >= 0.9, "{t:?}");
 }
 
 #[test]
@@ -137,6 +138,9 @@ fn a_tall_block_that_hides_four_stripes_is_coded() {
         t.coverage()
     );
     assert!(t.right_rate() >= 0.999, "{t:?}");
+    // 93.3% coded (72% before the rows compared neighbouring stripes' brightness: the belt's stripe 3 lies on the
+    // column of the block's stripe 7, and the rows were ambiguous there).
+    assert!(t.coverage() >= 0.9, "{t:?}");
 }
 
 /// Temporal reconciliation on 22 consecutive frames (0.5 mm apart) of a plate with four defects, one a hole that
