@@ -465,28 +465,42 @@ impl Simulator {
     /// height seen through it differs from its left neighbour's by more than [`EDGE_JUMP_MM`] (a wall, an occluding
     /// edge, a hole's rim: steeper than about 70 degrees at the paper's scale of 0.17 mm a pixel), when one of the
     /// two surface points is lit by the projector and the other is not (a laser shadow's boundary), or when their
-    /// reflectances differ by more than [`EDGE_ALBEDO_RATIO`] (an albedo edge). A stripe whose light falls across
+    /// reflectances differ by more than [`EDGE_ALBEDO_RATIO`] (an albedo edge); a pixel and the one above it are both
+    /// marked when they differ so (a rim running along the rows, which a stripe crosses at a grazing angle). A stripe whose light falls across
     /// such a pixel has no single centre on one surface, or an intensity centre off the sheet's: the benchmarks score
     /// points there apart ([`EdgeMap::near`]).
     pub fn edge_map(&self, travel_mm: f64) -> EdgeMap {
         let cam = &self.sensor.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
         let mut marks = vec![false; w * h];
+        // Per pixel of the previous row and of this one: height, lit, reflectance.
+        let mut above: Vec<(f64, bool, f64)> = Vec::with_capacity(w);
+        let mut here: Vec<(f64, bool, f64)> = Vec::with_capacity(w);
+        let breaks = |a: (f64, bool, f64), b: (f64, bool, f64)| {
+            let (lo, hi) = (a.2.min(b.2), a.2.max(b.2));
+            (a.0 - b.0).abs() > EDGE_JUMP_MM || a.1 != b.1 || hi > EDGE_ALBEDO_RATIO * lo
+        };
         for v in 0..h {
-            let mut prev: Option<(f64, bool, f64)> = None;
+            here.clear();
             for u in 0..w {
                 let (xn, yn) = self.rays[v * w + u];
                 let z = self.cast(xn, yn, travel_mm);
                 let p = self.world_point(xn, yn, z);
                 let lit = self.lit(&p, travel_mm);
                 let albedo = self.field.surface_at(p.x - travel_mm, p.y).albedo;
-                if let Some((pz, plit, palbedo)) = prev {
-                    let (lo, hi) = (albedo.min(palbedo), albedo.max(palbedo));
-                    marks[v * w + u] =
-                        (z - pz).abs() > EDGE_JUMP_MM || lit != plit || hi > EDGE_ALBEDO_RATIO * lo;
+                let s = (z, lit, albedo);
+                if u > 0 && breaks(here[u - 1], s) {
+                    marks[v * w + u] = true;
                 }
-                prev = Some((z, lit, albedo));
+                // A break with the pixel above marks both: a rim running along the rows breaks the surface between
+                // rows, and the stripe crossing it there at a grazing angle is smeared over both (the optics' blur).
+                if v > 0 && breaks(above[u], s) {
+                    marks[v * w + u] = true;
+                    marks[(v - 1) * w + u] = true;
+                }
+                here.push(s);
             }
+            std::mem::swap(&mut above, &mut here);
         }
         EdgeMap {
             width: w,

@@ -106,14 +106,24 @@ fn noisy_plate_detection_and_accuracy() {
 
 #[test]
 fn demo_scene_with_ghosts_does_not_regress() {
-    // The target here (>= 99.5 % within 0.5 px, <= 0.1 % false points) is not met yet: edges of the part
-    // light half a stripe (beam tails on corners, occluding edges, albedo edges), which every estimator places
-    // off the sheet. This guards the level measured when the extractor landed.
+    // The target (>= 99.5 % within 0.5 px, <= 0.1 % false points) is not met over the whole scene: edges of
+    // the part light half a stripe (beam tails on corners, occluding edges, albedo edges), which every estimator
+    // places off the sheet. This guards the level measured when the extractor landed, and the target away from
+    // the edges.
     let sensor = Sensor::default();
     let sim = Simulator::new(&sensor, &Scene::demo(), RenderOptions::default()).expect("sim");
     let frames: Vec<Frame> = (0..4).map(|k| sim.render(k * 5, k as f64 * 2.5)).collect();
     let edges: Vec<EdgeMap> = (0..4).map(|k| sim.edge_map(k as f64 * 2.5)).collect();
     let (s, clean) = score_where(&frames, 8, Method::Steger, Some(&edges));
+    eprintln!(
+        "all: {:.4} / {:.5}; away from edges: {:.4} / {:.5} ({} of {} truth points)",
+        s.detection_rate(),
+        s.false_rate(),
+        clean.detection_rate(),
+        clean.false_rate(),
+        clean.truth,
+        s.truth
+    );
     assert!(
         s.detection_rate() > 0.97,
         "detection {}",
@@ -133,8 +143,10 @@ fn demo_scene_with_ghosts_does_not_regress() {
         "detection away from edges {}",
         clean.detection_rate()
     );
+    // 0.050% on these frames; 0.115% while the edge map compared each pixel with its left neighbour only (a rim
+    // running along the rows went unmarked).
     assert!(
-        clean.false_rate() < 0.005,
+        clean.false_rate() <= 0.001,
         "false points away from edges {}",
         clean.false_rate()
     );
