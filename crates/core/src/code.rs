@@ -1212,8 +1212,8 @@ impl Transitions {
     /// `to` at height `zb` (peak `ib`): stripes `from + 1 .. to` missing (one wall hides all it hides when the
     /// surface rises away from the projector: one event, plus a little per stripe), or between neighbouring
     /// stripes the surface jumping (a height step beyond [`CodingParams::jump_mm`]) or tilting (a cost per
-    /// millimetre, at most a jump's; on the belt, more for peaks too unlike for it, still at most a jump's). `rise_sign` is +1 when stripe `to` moves
-    /// towards smaller columns as the height grows, −1 otherwise.
+    /// millimetre, at most a jump's; on the belt, more for peaks too unlike for it, still at most a jump's).
+    /// `rise_sign` is +1 when stripe `to` moves towards smaller columns as the height grows, −1 otherwise.
     ///
     /// `from == to` is one sheet seen twice: where an edge runs along the row, the sheet's upper part lies on the
     /// upper surface and the rest beyond the edge on the lower one, two points of one stripe in one row (a plate's

@@ -466,9 +466,9 @@ impl Simulator {
     /// edge, a hole's rim: steeper than about 70 degrees at the paper's scale of 0.17 mm a pixel), when one of the
     /// two surface points is lit by the projector and the other is not (a laser shadow's boundary), or when their
     /// reflectances differ by more than [`EDGE_ALBEDO_RATIO`] (an albedo edge); a pixel and the one above it are both
-    /// marked when they differ so (a rim running along the rows, which a stripe crosses at a grazing angle). A stripe whose light falls across
-    /// such a pixel has no single centre on one surface, or an intensity centre off the sheet's: the benchmarks score
-    /// points there apart ([`EdgeMap::near`]).
+    /// marked when they differ so (a rim running along the rows, which a stripe crosses at a grazing angle). A
+    /// stripe whose light falls across such a pixel has no single centre on one surface, or an intensity centre off
+    /// the sheet's: the benchmarks score points there apart ([`EdgeMap::near`]).
     pub fn edge_map(&self, travel_mm: f64) -> EdgeMap {
         let cam = &self.sensor.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
