@@ -15,6 +15,7 @@ use stripe3d_core::calibrate::check_camera;
 use stripe3d_core::characterize::{
     CharacterizeParams, ReferenceInfo, ReferenceShape, ReferenceSource,
 };
+use stripe3d_core::code::CodingParams;
 use stripe3d_core::detect::{DetectParams, Detection, Inspection, SurfaceRules, inspect};
 use stripe3d_io::files::{prepare_dir, read_text};
 use stripe3d_io::history::{CandidateRecord, History, InspectionRecord, default_path};
@@ -459,7 +460,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             &travel,
             extract_params(&estimator)?,
             ModelKind::Full,
-            range_mm,
+            crate::scan::coding_with_range(CodingParams::default(), range_mm),
             grid,
             !args.no_curvature_correction,
         )?;

@@ -21,7 +21,7 @@ use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
 use stripe3d_io::images::{FrameData, read_frame_native};
-use stripe3d_io::{read_sensor, write_atomic};
+use stripe3d_io::{read_coding_params, read_sensor, write_atomic};
 
 /// Largest frame accepted, pixels.
 const MAX_FRAME_PIXELS: usize = 64 << 20;
@@ -84,6 +84,10 @@ pub struct ScanArgs {
     /// quarter of their span above and 1 mm below].
     #[arg(long, value_name = "MIN:MAX")]
     pub range: Option<String>,
+    /// Stripe-coding parameters (TOML: any fields of `CodingParams`, e.g. `faint_intensity = 0.2`; the others keep
+    /// their defaults, tuned on the simulator; the measuring range is --range's).
+    #[arg(long, value_name = "FILE")]
+    pub coding: Option<PathBuf>,
     /// Stripe points whose profile's flanks are more lopsided than this, 0 to 1, are cut: coding lets the dim ones
     /// (a sheet's tail on a corner) follow a stripe but not start one. `off` treats every point alike.
     #[arg(long, value_name = "LIMIT|off", default_value_t = stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY, value_parser = crate::extract::parse_asymmetry)]
@@ -92,6 +96,15 @@ pub struct ScanArgs {
     /// (made for the `steger` estimator, from laser.sigma_mm and camera.psf_sigma_px of sensor.toml).
     #[arg(long)]
     pub no_curvature_correction: bool,
+}
+
+/// `coding` with the measuring range `range_mm` (MIN, MAX) that stripe coding allows.
+pub fn coding_with_range(coding: CodingParams, range_mm: (f64, f64)) -> CodingParams {
+    CodingParams {
+        min_height_mm: range_mm.0,
+        max_height_mm: range_mm.1,
+        ..coding
+    }
 }
 
 /// The extraction of a scan with estimator `method`: every other setting at its default.
@@ -320,7 +333,7 @@ pub fn scan_frames(
     travel: &[f64],
     extract: ExtractParams,
     model: ModelKind,
-    range_mm: (f64, f64),
+    coding_params: CodingParams,
     grid_mm: [f64; 2],
     curvature_correction: bool,
 ) -> Result<ScanResult> {
@@ -328,11 +341,6 @@ pub fn scan_frames(
         .then(|| CurvatureBias::new(sensor, &cal.full, extract.method))
         .flatten();
     let (w, h) = (sensor.camera.width, sensor.camera.height);
-    let coding_params = CodingParams {
-        min_height_mm: range_mm.0,
-        max_height_mm: range_mm.1,
-        ..CodingParams::default()
-    };
     let scanner = Scanner::new(cal, extract, coding_params, model)?;
     let bar = ProgressBar::new(frames.len() as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames ({eta})")
@@ -433,6 +441,10 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         cut_asymmetry: args.cut_asymmetry,
         ..extract_params(&args.method)?
     };
+    let coding = match &args.coding {
+        Some(path) => read_coding_params(path)?,
+        None => CodingParams::default(),
+    };
     let res = scan_frames(
         &sensor,
         &cal,
@@ -440,7 +452,7 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         &travel,
         extract,
         model,
-        range_mm,
+        coding_with_range(coding, range_mm),
         grid,
         !args.no_curvature_correction,
     )?;

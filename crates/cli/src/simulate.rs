@@ -377,6 +377,7 @@ fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::sc
         model: ModelArg::Full,
         method: "steger".into(),
         range: None,
+        coding: None,
         cut_asymmetry: stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY,
         no_curvature_correction: false,
     })

@@ -487,17 +487,43 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
         !Path::new(scan_out).join("cloud.ply").exists(),
         "nothing written on refusal"
     );
-    // Bad grid and range arguments.
+    // Bad grid, range and coding arguments.
+    let coding = write(
+        dir.path(),
+        "coding.toml",
+        "margin = 0.3\noutlier_cost = -1\n",
+    );
+    let ranged = write(dir.path(), "ranged.toml", "max_height_mm = 20\n");
     for (flag, value, needle) in [
         ("--grid-mm", "0", "positive"),
         ("--range", "5:1", "above MIN"),
+        ("--coding", coding.as_str(), "coding.toml:2: outlier_cost"),
+        ("--coding", ranged.as_str(), "--range MIN:MAX"),
+        ("--coding", "no-such-coding.toml", "no-such-coding.toml"),
     ] {
         let o = stripe3d(&[
             "scan", "--sensor", &sensor, "--calib", &calib, "--out", scan_out, flag, value, &frames,
         ]);
         assert!(!o.status.success());
         assert!(stderr(&o).contains(needle), "{flag}: {}", stderr(&o));
+        assert!(
+            !Path::new(scan_out).join("cloud.ply").exists(),
+            "{flag}: nothing written"
+        );
     }
+    // A coding file naming a few parameters scans; the rest keep their defaults.
+    let tuned = write(
+        dir.path(),
+        "tuned.toml",
+        "# our line's coding\nfaint_intensity = 0.15\ntilt_cost_per_mm = 1.6\n",
+    );
+    let o = stripe3d(&[
+        "scan", "--sensor", &sensor, "--calib", &calib, "--out", scan_out, "--coding", &tuned,
+        &frames,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(Path::new(scan_out).join("cloud.ply").exists());
+    std::fs::remove_dir_all(scan_out).expect("clean");
     // Calibration refusals.
     let plate = s("calibration/plate-10mm.png");
     let o = stripe3d(&[

@@ -44,10 +44,16 @@ use crate::extract::StripePoint;
 use crate::rules::RuleBase;
 use crate::sensor::MAX_STRIPES;
 use crate::triangulate::FullModel;
+use serde::{Deserialize, Serialize};
 use stripe3d_fuzzy::Engine;
 
-/// Parameters of [`StripeCoder`]; every cost is in units of one unexplained missing stripe.
-#[derive(Debug, Clone, PartialEq)]
+/// Largest [`CodingParams::max_outlier_run`]: the row passes visit every pair of points this many apart.
+pub const MAX_OUTLIER_RUN: usize = 16;
+
+/// Parameters of [`StripeCoder`]; every cost is in units of one unexplained missing stripe. They read from TOML
+/// (`stripe3d scan --coding FILE`): every field may be left out and keeps its default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct CodingParams {
     /// Lowest height a surface point may have, mm (slightly below the belt, for noise).
     pub min_height_mm: f64,
@@ -215,6 +221,30 @@ impl CodingParams {
             if !v.is_finite() {
                 return bad(field, v, "must be a finite number");
             }
+        }
+        // Costs, heights and distances that the row passes take to be at least zero (a transition cost is never
+        // negative: the passes stop at a candidate whose cost before its transition reaches the best found).
+        for (field, v) in [
+            ("rise_mm", self.rise_mm),
+            ("skip_cost", self.skip_cost),
+            ("rise_skip_cost", self.rise_skip_cost),
+            ("edge_skip_cost", self.edge_skip_cost),
+            ("jump_mm", self.jump_mm),
+            ("jump_cost", self.jump_cost),
+            ("outlier_cost", self.outlier_cost),
+            ("margin", self.margin),
+            ("segment_override_cost", self.segment_override_cost),
+        ] {
+            if v < 0.0 {
+                return bad(field, v, "must be 0 or more");
+            }
+        }
+        if self.max_outlier_run > MAX_OUTLIER_RUN {
+            return bad(
+                "max_outlier_run",
+                self.max_outlier_run as f64,
+                &format!("must be 0 to {MAX_OUTLIER_RUN}"),
+            );
         }
         if self.max_height_mm <= self.min_height_mm {
             return bad(
@@ -3118,6 +3148,17 @@ mod tests {
             ..CodingParams::default()
         };
         assert!(StripeCoder::new(&model, 648, 480, nan).is_err());
+        // A negative cost would let the row passes stop before the best labelling; a huge run would overflow them.
+        let negative = CodingParams {
+            outlier_cost: -0.1,
+            ..CodingParams::default()
+        };
+        assert!(StripeCoder::new(&model, 648, 480, negative).is_err());
+        let run = CodingParams {
+            max_outlier_run: usize::MAX,
+            ..CodingParams::default()
+        };
+        assert!(StripeCoder::new(&model, 648, 480, run).is_err());
         let ratio = CodingParams {
             link_intensity_ratio: 1.5,
             ..CodingParams::default()

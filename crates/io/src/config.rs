@@ -1,6 +1,6 @@
-//! `sensor.toml` and scene files.
+//! `sensor.toml`, scene files and stripe-coding parameter files.
 //!
-//! Both are TOML. Syntax and type errors carry the line and column; impossible values (zero focal length,
+//! All are TOML. Syntax and type errors carry the line and column; impossible values (zero focal length,
 //! stripes outside the view, a negative diameter) carry the field's dotted name and, where it is written in the
 //! file, its line.
 
@@ -8,6 +8,7 @@ use crate::IoError;
 use crate::files::read_text;
 use serde::de::DeserializeOwned;
 use std::path::Path;
+use stripe3d_core::code::CodingParams;
 use stripe3d_core::{CoreError, Sensor};
 use stripe3d_sim::{Scene, SimError};
 
@@ -140,6 +141,51 @@ pub fn scene_from_str(path: &Path, text: &str) -> Result<Scene, IoError> {
     Ok(scene)
 }
 
+/// Reads and validates a stripe-coding parameter file (`stripe3d scan --coding`).
+pub fn read_coding_params(path: &Path) -> Result<CodingParams, IoError> {
+    let text = read_text(path)?;
+    coding_params_from_str(path, &text)
+}
+
+/// Parses and validates stripe-coding parameters held in memory; `path` is used in messages. Fields left out keep
+/// their defaults. The measuring range (`min_height_mm`, `max_height_mm`) is refused here: a scan sets it with
+/// `--range` or from the calibration, and a value in the file would be silently replaced.
+pub fn coding_params_from_str(path: &Path, text: &str) -> Result<CodingParams, IoError> {
+    let params: CodingParams = parse(path, text)?;
+    for field in ["min_height_mm", "max_height_mm"] {
+        if let Some(line) = line_of(text, field) {
+            return Err(IoError::Invalid {
+                path: path.to_path_buf(),
+                line: Some(line),
+                field: field.into(),
+                message:
+                    "the measuring range is set with `stripe3d scan --range MIN:MAX` (or from the \
+                          calibration): remove it from this file"
+                        .into(),
+            });
+        }
+    }
+    params.validate().map_err(|e| match e {
+        CoreError::InvalidParameter {
+            field,
+            value,
+            reason,
+        } => IoError::Invalid {
+            path: path.to_path_buf(),
+            line: line_of(text, field),
+            field: field.to_string(),
+            message: format!("{value}: {reason}"),
+        },
+        other => IoError::Invalid {
+            path: path.to_path_buf(),
+            line: None,
+            field: "(coding)".into(),
+            message: other.to_string(),
+        },
+    })?;
+    Ok(params)
+}
+
 /// `sensor.toml` text for a sensor (every field written, with its default where the user gave none).
 pub fn sensor_to_toml(sensor: &Sensor) -> String {
     let body = toml::to_string_pretty(sensor).unwrap_or_default();
@@ -232,11 +278,69 @@ fps = 20.0
         assert!(matches!(e, IoError::Syntax { .. }), "{e}");
     }
 
+    #[test]
+    fn coding_parameter_files_set_what_they_name_and_refuse_by_field() {
+        let p = Path::new("coding.toml");
+        let c = coding_params_from_str(
+            p,
+            "# tuned on our line\nfaint_intensity = 0.2\nmax_outlier_run = 3\n",
+        )
+        .expect("valid");
+        assert_eq!(c.faint_intensity, 0.2);
+        assert_eq!(c.max_outlier_run, 3);
+        assert_eq!(
+            c.jump_cost,
+            CodingParams::default().jump_cost,
+            "the rest keep their defaults"
+        );
+        assert_eq!(
+            coding_params_from_str(p, "").expect("empty"),
+            CodingParams::default()
+        );
+        // The README's example.
+        let readme = "# coding.toml: our line's stripes are dimmer at the far edge of the view\n\
+                      faint_intensity = 0.1\nbelt_intensity_ratio = 0.4\n";
+        let c = coding_params_from_str(p, readme).expect("README example");
+        assert_eq!((c.faint_intensity, c.belt_intensity_ratio), (0.1, 0.4));
+        let e =
+            coding_params_from_str(p, "margin = 0.3\noutlier_cost = -1\n").expect_err("negative");
+        assert!(
+            e.to_string().starts_with("coding.toml:2: outlier_cost"),
+            "{e}"
+        );
+        let e = coding_params_from_str(p, "tilt_cost = 1\n").expect_err("unknown field");
+        assert!(matches!(e, IoError::Syntax { line: 1, .. }), "{e}");
+        assert!(e.to_string().contains("tilt_cost"), "{e}");
+        let e = coding_params_from_str(p, "belt_intensity_ratio = 2\n").expect_err("ratio");
+        assert!(e.to_string().contains("belt_intensity_ratio"), "{e}");
+        let e = coding_params_from_str(p, "margin = nan\n").expect_err("nan");
+        assert!(e.to_string().contains("margin"), "{e}");
+        let e = coding_params_from_str(p, "max_outlier_run = -2\n").expect_err("type");
+        assert!(matches!(e, IoError::Syntax { .. }), "{e}");
+        let e = coding_params_from_str(p, "jump_mm = 1\nmax_height_mm = 30\n").expect_err("range");
+        assert!(
+            e.to_string().starts_with("coding.toml:2: max_height_mm"),
+            "{e}"
+        );
+        assert!(e.to_string().contains("--range"), "{e}");
+    }
+
     proptest::proptest! {
         #[test]
         fn arbitrary_text_never_panics(text in "\\PC{0,200}") {
             let _ = sensor_from_str(Path::new("p"), &text);
             let _ = scene_from_str(Path::new("p"), &text);
+            let _ = coding_params_from_str(Path::new("p"), &text);
+        }
+
+        #[test]
+        fn mutated_coding_files_never_panic(pos in 0usize..200, byte in proptest::prelude::any::<u8>()) {
+            let mut bytes = b"margin = 0.3\nmax_outlier_run = 2\nbelt_intensity_ratio = 0.55\nmax_gap_rows = 40\n".to_vec();
+            let i = pos % bytes.len();
+            bytes[i] = byte;
+            if let Ok(text) = String::from_utf8(bytes) {
+                let _ = coding_params_from_str(Path::new("p"), &text);
+            }
         }
 
         #[test]

@@ -21,6 +21,6 @@ pub mod report;
 pub mod truth;
 
 pub use calib::{calibration_to_toml, read_calibration};
-pub use config::{read_scene, read_sensor, scene_to_toml, sensor_to_toml};
+pub use config::{read_coding_params, read_scene, read_sensor, scene_to_toml, sensor_to_toml};
 pub use error::IoError;
 pub use files::write_atomic;
