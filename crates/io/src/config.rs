@@ -81,17 +81,16 @@ fn line_of(text: &str, dotted: &str) -> Option<usize> {
     text.lines().position(|l| l.trim() == header).map(|n| n + 1)
 }
 
-/// Reads and validates `sensor.toml`.
-pub fn read_sensor(path: &Path) -> Result<Sensor, IoError> {
-    let text = read_text(path)?;
-    sensor_from_str(path, &text)
-}
-
-/// Parses and validates a sensor description held in memory; `path` is used in messages.
-pub fn sensor_from_str(path: &Path, text: &str) -> Result<Sensor, IoError> {
-    let sensor: Sensor = parse(path, text)?;
-    sensor.validate().map_err(|e| match e {
+/// The error for a value the core refused in the file `path` holding `text`: the field's name and, where it is
+/// written plainly, its line (`what` names the file's kind when the refusal names no field).
+fn refused(path: &Path, text: &str, e: CoreError, what: &str) -> IoError {
+    match e {
         CoreError::InvalidSensor {
+            field,
+            value,
+            reason,
+        }
+        | CoreError::InvalidParameter {
             field,
             value,
             reason,
@@ -104,10 +103,24 @@ pub fn sensor_from_str(path: &Path, text: &str) -> Result<Sensor, IoError> {
         other => IoError::Invalid {
             path: path.to_path_buf(),
             line: None,
-            field: "(sensor)".into(),
+            field: what.into(),
             message: other.to_string(),
         },
-    })?;
+    }
+}
+
+/// Reads and validates `sensor.toml`.
+pub fn read_sensor(path: &Path) -> Result<Sensor, IoError> {
+    let text = read_text(path)?;
+    sensor_from_str(path, &text)
+}
+
+/// Parses and validates a sensor description held in memory; `path` is used in messages.
+pub fn sensor_from_str(path: &Path, text: &str) -> Result<Sensor, IoError> {
+    let sensor: Sensor = parse(path, text)?;
+    sensor
+        .validate()
+        .map_err(|e| refused(path, text, e, "(sensor)"))?;
     Ok(sensor)
 }
 
@@ -165,24 +178,9 @@ pub fn coding_params_from_str(path: &Path, text: &str) -> Result<CodingParams, I
             });
         }
     }
-    params.validate().map_err(|e| match e {
-        CoreError::InvalidParameter {
-            field,
-            value,
-            reason,
-        } => IoError::Invalid {
-            path: path.to_path_buf(),
-            line: line_of(text, field),
-            field: field.to_string(),
-            message: format!("{value}: {reason}"),
-        },
-        other => IoError::Invalid {
-            path: path.to_path_buf(),
-            line: None,
-            field: "(coding)".into(),
-            message: other.to_string(),
-        },
-    })?;
+    params
+        .validate()
+        .map_err(|e| refused(path, text, e, "(coding)"))?;
     Ok(params)
 }
 
