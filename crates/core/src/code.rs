@@ -3138,27 +3138,32 @@ mod tests {
         );
         assert_eq!(out.stats.coded, 0);
         assert_eq!(out.stripes, vec![None, None]);
-        let bad = CodingParams {
-            max_height_mm: -5.0,
-            ..CodingParams::default()
-        };
-        assert!(StripeCoder::new(&model, 648, 480, bad).is_err());
-        let nan = CodingParams {
-            margin: f64::NAN,
-            ..CodingParams::default()
-        };
-        assert!(StripeCoder::new(&model, 648, 480, nan).is_err());
-        // A negative cost would let the row passes stop before the best labelling; a huge run would overflow them.
-        let negative = CodingParams {
-            outlier_cost: -0.1,
-            ..CodingParams::default()
-        };
-        assert!(StripeCoder::new(&model, 648, 480, negative).is_err());
-        let run = CodingParams {
-            max_outlier_run: usize::MAX,
-            ..CodingParams::default()
-        };
-        assert!(StripeCoder::new(&model, 648, 480, run).is_err());
+        let d = CodingParams::default;
+        for bad in [
+            CodingParams {
+                max_height_mm: -5.0,
+                ..d()
+            },
+            CodingParams {
+                margin: f64::NAN,
+                ..d()
+            },
+            // A negative cost would let the row passes stop before the best labelling; a huge run would overflow
+            // them.
+            CodingParams {
+                outlier_cost: -0.1,
+                ..d()
+            },
+            CodingParams {
+                max_outlier_run: usize::MAX,
+                ..d()
+            },
+        ] {
+            assert!(
+                StripeCoder::new(&model, 648, 480, bad.clone()).is_err(),
+                "{bad:?}"
+            );
+        }
         let ratio = CodingParams {
             link_intensity_ratio: 1.5,
             ..CodingParams::default()
