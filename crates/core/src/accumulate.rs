@@ -460,6 +460,11 @@ impl RangeGrid {
         ) else {
             return;
         };
+        self.add_cell(k, z, intensity, sign);
+    }
+
+    #[inline]
+    fn add_cell(&mut self, k: usize, z: f64, intensity: f64, sign: i32) {
         self.sum[k] += f64::from(sign) * z;
         self.intensity[k] += (f64::from(sign) * intensity) as f32;
         self.count[k] = self.count[k].wrapping_add_signed(sign);
@@ -600,16 +605,24 @@ impl RangeGrid {
         }
         let poly = Newton::through(&nodes[..n]);
         let (xa, xb) = (a.x.min(b.x), a.x.max(b.x));
-        // A cell or two more on each side than needed (truncation, not a library `floor`); the test below keeps
-        // exactly those strictly between.
+        // The columns strictly between the samples, from a cell or two more on each side (truncation, not a
+        // library `floor`; the test below keeps exactly those strictly between). A column's centre is on the grid,
+        // so its cell is known without the division `cell_index` makes; only the row is worked out, by the same
+        // rounding. One division per interval, none per cell.
         let first = ((xa - self.origin[0]) / dx) as i64;
         let last = ((xb - self.origin[0]) / dx) as i64 + 1;
-        for c in first..=last {
+        let inv_span = 1.0 / (b.x - a.x);
+        let dy = self.params.spacing_mm[1];
+        let (width, height) = (index_f64(self.width), index_f64(self.height));
+        for c in first.max(0)..=last {
             let x = self.origin[0] + c as f64 * dx;
             if x <= xa || x >= xb {
                 continue;
             }
-            let t = (x - a.x) / (b.x - a.x);
+            if c as f64 >= width {
+                break;
+            }
+            let t = (x - a.x) * inv_span;
             let chord = a.z + t * (b.z - a.z);
             // The curve may leave the chord by what a smooth surface does between samples, no more (a noisy or
             // kinked neighbour must not swing it).
@@ -619,8 +632,14 @@ impl RangeGrid {
             } else {
                 chord
             };
+            let y = a.y + t * (b.y - a.y);
+            // As in `cell_index`; NaN fails the comparisons too.
+            let j = (self.origin[1] - y) / dy + 0.5;
+            if !(j >= 0.0 && j < height) {
+                continue;
+            }
             let intensity = a.intensity + t * (b.intensity - a.intensity);
-            self.add(x, a.y + t * (b.y - a.y), z, intensity, sign);
+            self.add_cell(floor_index(j) * self.width + c as usize, z, intensity, sign);
         }
     }
 
