@@ -2,8 +2,8 @@
 //! defects, and write `report.json` with the pictures.
 
 use crate::scan::{
-    ScanResult, default_grid, extract_params, frame_list, scan_frames, travel_step, travels,
-    write_scan,
+    CodingArgs, ScanResult, default_grid, extract_params, frame_list, scan_frames, travel_step,
+    travels, write_scan,
 };
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
@@ -15,7 +15,6 @@ use stripe3d_core::calibrate::check_camera;
 use stripe3d_core::characterize::{
     CharacterizeParams, ReferenceInfo, ReferenceShape, ReferenceSource,
 };
-use stripe3d_core::code::CodingParams;
 use stripe3d_core::detect::{DetectParams, Detection, Inspection, SurfaceRules, inspect};
 use stripe3d_io::files::{prepare_dir, read_text};
 use stripe3d_io::history::{CandidateRecord, History, InspectionRecord, default_path};
@@ -88,6 +87,9 @@ pub struct InspectArgs {
     /// Range image cell size in mm when scanning frames [default: one pixel on the belt].
     #[arg(long, value_name = "MM")]
     pub grid_mm: Option<f64>,
+    /// When scanning frames: stripe coding's measuring range and parameters (as `stripe3d scan`'s).
+    #[command(flatten)]
+    pub coding: CodingArgs,
     /// When scanning frames, keep the heights as triangulated (see `stripe3d scan --help`).
     #[arg(long)]
     pub no_curvature_correction: bool,
@@ -378,6 +380,28 @@ const RECENT_PARTS: usize = 20;
 
 /// Runs `stripe3d inspect`.
 pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
+    let range_input = is_range_input(&args.frames);
+    // A range image is scanned already: options of a scan would be ignored, so they are refused.
+    let scan_only: Vec<&str> = [
+        args.sensor.as_ref().map(|_| "--sensor"),
+        args.calib.as_ref().map(|_| "--calib"),
+        args.encoder.as_ref().map(|_| "--encoder"),
+        args.grid_mm.map(|_| "--grid-mm"),
+        args.no_curvature_correction
+            .then_some("--no-curvature-correction"),
+    ]
+    .into_iter()
+    .flatten()
+    .chain(args.coding.given())
+    .collect();
+    if range_input && !scan_only.is_empty() {
+        bail!(
+            "{} is a range image, scanned already: {} apply only when inspecting frames (scan again with \
+             `stripe3d scan` to change them)",
+            args.frames[0].display(),
+            scan_only.join(", ")
+        );
+    }
     let ctx = load_product(args.product.as_deref(), args.kb.as_deref())?;
     let method = match &ctx {
         Some(c) => Some(c.kb.product_context(&c.name)?.2.clone()),
@@ -416,7 +440,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         Some(p) => Some(read_range(p).with_context(|| format!("--reference {}", p.display()))?),
         None => None,
     };
-    let (range, input, travel_step_mm) = if is_range_input(&args.frames) {
+    let (range, input, travel_step_mm) = if range_input {
         let r = read_range(&args.frames[0])?;
         prepare_dir(&args.out)?;
         (
@@ -452,7 +476,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         let estimator = method
             .as_ref()
             .map_or("steger".to_string(), |m| m.scan.extraction.clone());
-        let range_mm = cal.coding_range_mm();
+        let (coding, range_mm) = args.coding.resolve(&cal)?;
         let res: ScanResult = scan_frames(
             &sensor,
             &cal,
@@ -460,7 +484,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             &travel,
             extract_params(&estimator)?,
             ModelKind::Full,
-            crate::scan::coding_with_range(CodingParams::default(), range_mm),
+            coding,
             grid,
             !args.no_curvature_correction,
         )?;

@@ -80,14 +80,9 @@ pub struct ScanArgs {
     /// Sub-pixel estimator.
     #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(crate::extract::method_names()))]
     pub method: String,
-    /// Measuring range MIN:MAX in mm that stripe coding allows [default: the calibrated heights, widened by a
-    /// quarter of their span above and 1 mm below].
-    #[arg(long, value_name = "MIN:MAX")]
-    pub range: Option<String>,
-    /// Stripe-coding parameters (TOML: any fields of `CodingParams`, e.g. `faint_intensity = 0.2`; the others keep
-    /// their defaults, tuned on the simulator; the measuring range is --range's).
-    #[arg(long, value_name = "FILE")]
-    pub coding: Option<PathBuf>,
+    /// Stripe coding: the measuring range and the coding parameters.
+    #[command(flatten)]
+    pub coding: CodingArgs,
     /// Stripe points whose profile's flanks are more lopsided than this, 0 to 1, are cut: coding lets the dim ones
     /// (a sheet's tail on a corner) follow a stripe but not start one. `off` treats every point alike.
     #[arg(long, value_name = "LIMIT|off", default_value_t = stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY, value_parser = crate::extract::parse_asymmetry)]
@@ -96,6 +91,46 @@ pub struct ScanArgs {
     /// (made for the `steger` estimator, from laser.sigma_mm and camera.psf_sigma_px of sensor.toml).
     #[arg(long)]
     pub no_curvature_correction: bool,
+}
+
+/// The stripe-coding options of the commands that scan frames (`stripe3d scan`, `stripe3d inspect`).
+#[derive(Debug, Clone, Default, Args)]
+pub struct CodingArgs {
+    /// Measuring range MIN:MAX in mm that stripe coding allows [default: the calibrated heights, widened by a
+    /// quarter of their span above and 1 mm below]. MIN may be negative (`--range -1:40`).
+    #[arg(long, value_name = "MIN:MAX", allow_hyphen_values = true)]
+    pub range: Option<String>,
+    /// Stripe-coding parameters (TOML: any fields of `CodingParams`, e.g. `faint_intensity = 0.2`; the others keep
+    /// their defaults, tuned on the simulator; the measuring range is --range's).
+    #[arg(long, value_name = "FILE")]
+    pub coding: Option<PathBuf>,
+}
+
+impl CodingArgs {
+    /// The coding parameters these options give with calibration `cal` (the file's, else the defaults, with the
+    /// measuring range set), and that range (MIN, MAX) in mm.
+    pub fn resolve(&self, cal: &Calibration) -> Result<(CodingParams, (f64, f64))> {
+        let range_mm = match &self.range {
+            Some(r) => parse_range(r)?,
+            None => cal.coding_range_mm(),
+        };
+        let coding = match &self.coding {
+            Some(path) => read_coding_params(path)?,
+            None => CodingParams::default(),
+        };
+        Ok((coding_with_range(coding, range_mm), range_mm))
+    }
+
+    /// The options given, by flag (for refusing them where nothing is coded).
+    pub fn given(&self) -> Vec<&'static str> {
+        [
+            self.range.as_ref().map(|_| "--range"),
+            self.coding.as_ref().map(|_| "--coding"),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
 }
 
 /// `coding` with the measuring range `range_mm` (MIN, MAX) that stripe coding allows.
@@ -429,10 +464,7 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         Some(g) => parse_grid(g)?,
         None => default_grid(&sensor),
     };
-    let range_mm = match &args.range {
-        Some(r) => parse_range(r)?,
-        None => cal.coding_range_mm(),
-    };
+    let (coding, range_mm) = args.coding.resolve(&cal)?;
     let model = match args.model {
         ModelArg::Full => ModelKind::Full,
         ModelArg::Linear => ModelKind::Linear,
@@ -441,10 +473,6 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         cut_asymmetry: args.cut_asymmetry,
         ..extract_params(&args.method)?
     };
-    let coding = match &args.coding {
-        Some(path) => read_coding_params(path)?,
-        None => CodingParams::default(),
-    };
     let res = scan_frames(
         &sensor,
         &cal,
@@ -452,7 +480,7 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         &travel,
         extract,
         model,
-        coding_with_range(coding, range_mm),
+        coding,
         grid,
         !args.no_curvature_correction,
     )?;

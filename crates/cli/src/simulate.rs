@@ -376,8 +376,7 @@ fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::sc
         grid_mm: None,
         model: ModelArg::Full,
         method: "steger".into(),
-        range: None,
-        coding: None,
+        coding: crate::scan::CodingArgs::default(),
         cut_asymmetry: stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY,
         no_curvature_correction: false,
     })
@@ -446,6 +445,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         threshold_mm: None,
         encoder: None,
         grid_mm: None,
+        coding: crate::scan::CodingArgs::default(),
         no_curvature_correction: false,
     })?;
     let inspection = &outcome.inspection;

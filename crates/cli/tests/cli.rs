@@ -641,6 +641,43 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     let o = stripe3d(&["inspect", "--sensor", &sensor, "--out", &s("i2"), &frames]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--calib"), "{}", stderr(&o));
+    // Inspecting frames reads stripe coding's options as scanning does; on a range image they are refused, not
+    // ignored.
+    let o = stripe3d(&[
+        "inspect",
+        "--sensor",
+        &sensor,
+        "--calib",
+        &calib,
+        "--coding",
+        &coding,
+        "--out",
+        &s("i2"),
+        &frames,
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("coding.toml:2: outlier_cost"),
+        "{}",
+        stderr(&o)
+    );
+    for extra in [
+        ["--range", "-1:40"],
+        ["--coding", coding.as_str()],
+        ["--grid-mm", "0.3"],
+        ["--sensor", sensor.as_str()],
+    ] {
+        let mut argv = vec!["inspect", "--out", "unused"];
+        argv.extend(extra);
+        argv.push(&golden);
+        let o = stripe3d(&argv);
+        assert!(!o.status.success(), "{extra:?}");
+        assert!(
+            stderr(&o).contains(extra[0]) && stderr(&o).contains("range image"),
+            "{extra:?}: {}",
+            stderr(&o)
+        );
+    }
     let o = stripe3d(&[
         "inspect",
         "--reference",
