@@ -501,11 +501,13 @@ impl RangeGrid {
     }
 
     /// Makes the grid hold `profiles`, the scan accumulated on it by [`RangeGrid::accumulate_to_update`] with the
-    /// points `moved` (profile and point indices) changed in height or place: only their tracks are taken back and
-    /// added again, so the cost follows the points moved, not the scan (the sums may differ from a fresh
-    /// accumulation in their last bits). Points not listed must be as they were accumulated. When `profiles` are
-    /// not the same points (other counts, a moved point in another stripe, row or frame) or the grid does not hold
-    /// one scan's tracks, it is emptied and `profiles` accumulated.
+    /// points `moved` (profile and point indices) changed in height or place: only what they touch is taken back and
+    /// added again — each moved sample, and the cells filled between the samples of its track whose polynomial it is
+    /// a node of (two intervals before it to one after) — so the cost follows the points moved, not the scan or
+    /// their tracks' length (the sums may differ from a fresh accumulation in their last bits). Points not listed
+    /// must be as they were accumulated. When `profiles` are not the same points (other counts, a moved point in
+    /// another stripe, row or frame) or the grid does not hold one scan's tracks, it is emptied and `profiles`
+    /// accumulated.
     pub fn update(
         &mut self,
         profiles: &[Profile],
@@ -514,39 +516,61 @@ impl RangeGrid {
         let Some(mut held) = self.held.take().filter(|h| h.counts_fit(profiles)) else {
             return self.refill(profiles);
         };
-        let mut marked = vec![false; held.len()];
-        let mut changed = Vec::new();
+        // (track, sample, new value), in sample order: by track, and along each track.
         let mut news = Vec::new();
-        let mut samples = 0;
         for (i, j) in moved {
-            let Some((k, s, new)) = held.find(profiles, i, j) else {
+            let Some(found) = held.find(profiles, i, j) else {
                 return self.refill(profiles);
             };
-            news.push((s, new));
-            if !marked[k] {
-                marked[k] = true;
-                changed.push(k);
-                samples += held.start[k + 1] - held.start[k];
+            news.push(found);
+        }
+        news.sort_unstable_by_key(|&(_, s, _)| s);
+        news.dedup_by_key(|&mut (_, s, _)| s);
+        // Per touched track: its moved samples and the intervals they are nodes of (positions in the track).
+        let mut parts: Vec<(usize, Vec<usize>, Vec<usize>)> = Vec::new();
+        for &(k, s, _) in &news {
+            let (first, len) = (held.start[k], held.start[k + 1] - held.start[k]);
+            if parts.last().is_none_or(|(t, _, _)| *t != k) {
+                parts.push((k, Vec::new(), Vec::new()));
+            }
+            let Some((_, samples, intervals)) = parts.last_mut() else {
+                continue;
+            };
+            let p = s - first;
+            samples.push(p);
+            // Interval i (samples i and i + 1) has nodes i − 1 ..= i + 2; the track's last is len − 2.
+            if len >= 2 {
+                let lo = p
+                    .saturating_sub(2)
+                    .max(intervals.last().map_or(0, |&i| i + 1));
+                let hi = (p + 1).min(len - 2);
+                if lo <= hi {
+                    intervals.extend(lo..=hi);
+                }
             }
         }
-        // Taking a track back costs what adding it does: past half the samples, adding all afresh is cheaper.
-        let afresh = 2 * samples > held.samples.len();
+        let work: usize = parts.iter().map(|(_, s, i)| s.len() + i.len()).sum();
+        // Taking a part back costs what adding it does: past half the samples, adding all afresh is cheaper.
+        let afresh = 2 * work > held.samples.len();
         if !afresh {
-            for &k in &changed {
-                self.add_track::<{ -1 }>(held.track(k));
+            for (k, samples, intervals) in &parts {
+                self.add_part::<{ -1 }>(held.track(*k), samples, intervals);
             }
         }
-        for (s, new) in news {
+        for &(_, s, new) in &news {
             held.samples[s] = new;
         }
         if afresh {
             self.sum.fill(0.0);
             self.intensity.fill(0.0);
             self.count.fill(0);
-            changed = (0..held.len()).collect();
-        }
-        for k in changed {
-            self.add_track::<1>(held.track(k));
+            for k in 0..held.len() {
+                self.add_track::<1>(held.track(k));
+            }
+        } else {
+            for (k, samples, intervals) in &parts {
+                self.add_part::<1>(held.track(*k), samples, intervals);
+            }
         }
         self.held = Some(held);
     }
@@ -564,11 +588,28 @@ impl RangeGrid {
     fn add_track<const SIGN: i32>(&mut self, t: &[Sample]) {
         for (i, s) in t.iter().enumerate() {
             self.add(s.x, s.y, s.z, s.intensity, SIGN);
-            if i + 1 < t.len() && self.linked(s, &t[i + 1]) {
-                let before = (i > 0 && self.linked(&t[i - 1], s)).then(|| &t[i - 1]);
-                let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
-                self.fill(s, &t[i + 1], before, after, SIGN);
-            }
+            self.add_interval::<SIGN>(t, i);
+        }
+    }
+
+    /// Adds or takes back samples `samples` of track `t` and the cells filled in its intervals `intervals`.
+    fn add_part<const SIGN: i32>(&mut self, t: &[Sample], samples: &[usize], intervals: &[usize]) {
+        for &i in samples {
+            let s = &t[i];
+            self.add(s.x, s.y, s.z, s.intensity, SIGN);
+        }
+        for &i in intervals {
+            self.add_interval::<SIGN>(t, i);
+        }
+    }
+
+    /// Adds or takes back the cells filled between samples `i` and `i + 1` of track `t` (none when they are not
+    /// linked): they depend on samples `i − 1 ..= i + 2` alone.
+    fn add_interval<const SIGN: i32>(&mut self, t: &[Sample], i: usize) {
+        if i + 1 < t.len() && self.linked(&t[i], &t[i + 1]) {
+            let before = (i > 0 && self.linked(&t[i - 1], &t[i])).then(|| &t[i - 1]);
+            let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
+            self.fill(&t[i], &t[i + 1], before, after, SIGN);
         }
     }
 
@@ -856,6 +897,71 @@ mod tests {
         // A neighbour 0.2 mm higher bends it, as a smooth surface would.
         let z = fill_at(&[(0.0, 1.0), (0.5, 1.0), (1.0, 1.0), (1.5, 1.2)], 0.75);
         assert!((z - (1.0 - 0.0625 * 0.2)).abs() < 1e-6, "{z}");
+    }
+
+    #[test]
+    fn an_update_of_a_few_points_redoes_only_their_part_of_a_track() {
+        // One stripe, two rows, 40 frames; three points of row 8 move (at the track's start, in its middle, at its
+        // end, one of them past the fill's step limit): their samples and the intervals they are nodes of are taken
+        // back and added again, which must give what a fresh accumulation gives.
+        let moved = [0usize, 20, 39];
+        let scan = |bump: f64| -> Vec<Profile> {
+            (0..40)
+                .map(|k| {
+                    let x = 10.0 - 0.5 * k as f64;
+                    let mut p = prof(k, &[(x, 0.0, 1.0 + 0.01 * x * x)]);
+                    let mut q = p.points[0];
+                    q.row = 8;
+                    q.y_mm = -0.25;
+                    if moved.contains(&k) {
+                        q.z_mm += if k == 20 { 0.5 * bump } else { 0.05 * bump };
+                    }
+                    p.points.push(q);
+                    p
+                })
+                .collect()
+        };
+        let params = RangeParams {
+            spacing_mm: [0.125, 0.125],
+            ..RangeParams::default()
+        };
+        let (before, after) = (scan(0.0), scan(1.0));
+        let mut updated = RangeGrid::covering(&before, params.clone()).expect("grid");
+        updated.accumulate_to_update(&before);
+        let unchanged = updated.image();
+        updated.update(&after, moved.iter().map(|&k| (k, 1)));
+        let mut fresh = RangeGrid::covering(&after, params.clone()).expect("grid");
+        fresh.accumulate(&after);
+        let (u, f) = (updated.image(), fresh.image());
+        let mut changed = 0;
+        for ((a, b), c) in u.z.iter().zip(&f.z).zip(&unchanged.z) {
+            assert_eq!(a.is_nan(), b.is_nan());
+            if a.is_finite() {
+                assert!((a - b).abs() < 1e-5, "{a} against {b}");
+                changed += usize::from((a - c).abs() > 1e-4);
+            }
+        }
+        for (a, b) in u
+            .intensity
+            .iter()
+            .flatten()
+            .zip(f.intensity.iter().flatten())
+        {
+            assert!(
+                (a - b).abs() < 1e-3 || (a.is_nan() && b.is_nan()),
+                "{a} against {b}"
+            );
+        }
+        assert!(changed > 10, "{changed} cells changed");
+        // And back: what the grid held before.
+        updated.update(&before, moved.iter().map(|&k| (k, 1)));
+        let u = updated.image();
+        for (a, b) in u.z.iter().zip(&unchanged.z) {
+            assert!(
+                (a - b).abs() < 1e-5 || (a.is_nan() && b.is_nan()),
+                "{a} against {b}"
+            );
+        }
     }
 
     #[test]
