@@ -14,6 +14,7 @@ use crate::CoreError;
 use crate::code::Coding;
 use crate::extract::StripePoint;
 use crate::triangulate::{FullModel, LinearModel};
+use rayon::prelude::*;
 
 /// Which triangulation model turns pixels into millimetres.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -109,7 +110,7 @@ pub fn profile_into(
 
 /// Samples of one stripe and row at most this many frames apart are joined (when close enough): a frame in which
 /// coding dropped a whole stripe segment leaves no empty column behind.
-const MAX_FILL_FRAMES: usize = 2;
+const MAX_FILL_FRAMES: u32 = 2;
 
 /// Parameters of the range grid.
 #[derive(Debug, Clone, PartialEq)]
@@ -227,14 +228,17 @@ fn cell_index(
 /// A bump's top between samples 0.5 mm apart lies 0.03 mm above the chord at a curvature of 1/mm.
 const MAX_BOW_MM: f64 = 0.1;
 
-/// One sample of a track (a stripe and image row across frames).
+/// One sample of a track (a stripe and image row across frames). 32 bytes: a scan's samples are as many as its
+/// points, and sorting them into tracks is a scattered write per point.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct Sample {
-    frame: usize,
+    /// Frame index (a scan of 2^32 frames does not fit in memory; saturated beyond).
+    frame: u32,
+    /// The peak intensity, as the profile point has it.
+    intensity: f32,
     x: f64,
     y: f64,
     z: f64,
-    intensity: f64,
 }
 
 /// The polynomial through up to four nodes (distinct x) in Newton's form: its divided differences are worked out
@@ -369,11 +373,187 @@ impl Tracks {
 impl Sample {
     fn of(prof: &Profile, p: &ProfilePoint) -> Self {
         Self {
-            frame: prof.frame,
+            frame: u32::try_from(prof.frame).unwrap_or(u32::MAX),
+            intensity: p.intensity,
             x: p.x_mm,
             y: p.y_mm,
             z: p.z_mm,
-            intensity: f64::from(p.intensity),
+        }
+    }
+}
+
+/// Grid rows a band filled by one thread holds at least.
+const MIN_BAND_ROWS: usize = 16;
+
+/// What filling a grid reads: its geometry and the fill's limits (shared by the threads that fill bands of it).
+#[derive(Debug, Clone, Copy)]
+struct Layout {
+    origin: [f64; 2],
+    spacing: [f64; 2],
+    width: usize,
+    height: usize,
+    max_fill_mm: f64,
+    max_fill_step_mm: f64,
+}
+
+/// The sums of a run of whole grid rows, from cell `first` on: the whole grid, or one band of it; additions to
+/// cells outside it are left to the band that holds them.
+struct Cells<'a> {
+    first: usize,
+    sum: &'a mut [f64],
+    intensity: &'a mut [f32],
+    count: &'a mut [u32],
+}
+
+impl Cells<'_> {
+    #[inline]
+    fn add(&mut self, k: usize, z: f64, intensity: f64, sign: i32) {
+        let Some(o) = k.checked_sub(self.first).filter(|&o| o < self.sum.len()) else {
+            return;
+        };
+        self.sum[o] += f64::from(sign) * z;
+        self.intensity[o] += (f64::from(sign) * intensity) as f32;
+        self.count[o] = self.count[o].wrapping_add_signed(sign);
+    }
+}
+
+impl Layout {
+    /// The grid rows the cells of track `t` can lie in (first and last): one more on each side than its samples'
+    /// own rows (the cells filled between two samples lie between theirs, up to the rounding of the position);
+    /// `None` when no sample has a finite y (such a track adds nothing).
+    fn rows_of(&self, t: &[Sample]) -> Option<(usize, usize)> {
+        let (lo, hi) = t
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+                (lo.min(s.y), hi.max(s.y))
+            });
+        if !(lo.is_finite() && hi.is_finite()) {
+            return None;
+        }
+        // Rows run along −y.
+        let row = |y: f64| {
+            floor_index(
+                ((self.origin[1] - y) / self.spacing[1] + 0.5).clamp(0.0, index_f64(self.height)),
+            )
+        };
+        Some((
+            row(hi).saturating_sub(1),
+            (row(lo) + 1).min(self.height.saturating_sub(1)),
+        ))
+    }
+
+    #[inline]
+    fn add(&self, cells: &mut Cells<'_>, x: f64, y: f64, z: f64, intensity: f64, sign: i32) {
+        if let Some(k) = cell_index(self.origin, self.spacing, self.width, self.height, x, y) {
+            cells.add(k, z, intensity, sign);
+        }
+    }
+
+    /// Adds (`SIGN` 1) or takes back (−1) one track: its samples and the cells filled between them.
+    fn add_track<const SIGN: i32>(&self, cells: &mut Cells<'_>, t: &[Sample]) {
+        for (i, s) in t.iter().enumerate() {
+            self.add(cells, s.x, s.y, s.z, f64::from(s.intensity), SIGN);
+            self.add_interval::<SIGN>(cells, t, i);
+        }
+    }
+
+    /// Adds or takes back samples `samples` of track `t` and the cells filled in its intervals `intervals`.
+    fn add_part<const SIGN: i32>(
+        &self,
+        cells: &mut Cells<'_>,
+        t: &[Sample],
+        samples: &[usize],
+        intervals: &[usize],
+    ) {
+        for &i in samples {
+            let s = &t[i];
+            self.add(cells, s.x, s.y, s.z, f64::from(s.intensity), SIGN);
+        }
+        for &i in intervals {
+            self.add_interval::<SIGN>(cells, t, i);
+        }
+    }
+
+    /// Adds or takes back the cells filled between samples `i` and `i + 1` of track `t` (none when they are not
+    /// linked): they depend on samples `i − 1 ..= i + 2` alone.
+    fn add_interval<const SIGN: i32>(&self, cells: &mut Cells<'_>, t: &[Sample], i: usize) {
+        if i + 1 < t.len() && self.linked(&t[i], &t[i + 1]) {
+            let before = (i > 0 && self.linked(&t[i - 1], &t[i])).then(|| &t[i - 1]);
+            let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
+            self.fill(cells, &t[i], &t[i + 1], before, after, SIGN);
+        }
+    }
+
+    /// Whether consecutive samples `a` and `b` of a track are joined.
+    fn linked(&self, a: &Sample, b: &Sample) -> bool {
+        b.frame > a.frame
+            && b.frame - a.frame <= MAX_FILL_FRAMES
+            && (b.x - a.x).abs() <= self.max_fill_mm
+            && (b.z - a.z).abs() <= self.max_fill_step_mm
+    }
+
+    /// Fills the cells strictly between `a` and `b` along x, by the polynomial through them and the linked samples
+    /// around them (x strictly monotonic along the samples used; otherwise fewer of them).
+    fn fill(
+        &self,
+        cells: &mut Cells<'_>,
+        a: &Sample,
+        b: &Sample,
+        before: Option<&Sample>,
+        after: Option<&Sample>,
+        sign: i32,
+    ) {
+        let dx = self.spacing[0];
+        let rising = b.x > a.x;
+        let ordered = |p: &Sample, q: &Sample| if rising { q.x > p.x } else { q.x < p.x };
+        // Neighbours much closer to the interval than its own length make a wild polynomial: left out.
+        let span = (b.x - a.x).abs();
+        let before = before.filter(|p| ordered(p, a) && (a.x - p.x).abs() >= 0.5 * span);
+        let after = after.filter(|q| ordered(b, q) && (q.x - b.x).abs() >= 0.5 * span);
+        let mut nodes = [(0.0, 0.0); 4];
+        let mut n = 0;
+        for s in [before, Some(a), Some(b), after].into_iter().flatten() {
+            nodes[n] = (s.x, s.z);
+            n += 1;
+        }
+        let poly = Newton::through(&nodes[..n]);
+        let (xa, xb) = (a.x.min(b.x), a.x.max(b.x));
+        // The columns strictly between the samples, from a cell or two more on each side (truncation, not a
+        // library `floor`; the test below keeps exactly those strictly between). A column's centre is on the grid,
+        // so its cell is known without the division `cell_index` makes; only the row is worked out, by the same
+        // rounding. One division per interval, none per cell.
+        let first = ((xa - self.origin[0]) / dx) as i64;
+        let last = ((xb - self.origin[0]) / dx) as i64 + 1;
+        let inv_span = 1.0 / (b.x - a.x);
+        let dy = self.spacing[1];
+        let (width, height) = (index_f64(self.width), index_f64(self.height));
+        for c in first.max(0)..=last {
+            let x = self.origin[0] + c as f64 * dx;
+            if x <= xa || x >= xb {
+                continue;
+            }
+            if c as f64 >= width {
+                break;
+            }
+            let t = (x - a.x) * inv_span;
+            let chord = a.z + t * (b.z - a.z);
+            // The curve may leave the chord by what a smooth surface does between samples, no more (a noisy or
+            // kinked neighbour must not swing it).
+            let z = poly.at(x);
+            let z = if (z - chord).abs() <= MAX_BOW_MM {
+                z
+            } else {
+                chord
+            };
+            let y = a.y + t * (b.y - a.y);
+            // As in `cell_index`; NaN fails the comparisons too.
+            let j = (self.origin[1] - y) / dy + 0.5;
+            if !(j >= 0.0 && j < height) {
+                continue;
+            }
+            let (ia, ib) = (f64::from(a.intensity), f64::from(b.intensity));
+            let intensity = ia + t * (ib - ia);
+            cells.add(floor_index(j) * self.width + c as usize, z, intensity, sign);
         }
     }
 }
@@ -448,26 +628,69 @@ impl RangeGrid {
         })
     }
 
-    #[inline]
-    fn add(&mut self, x: f64, y: f64, z: f64, intensity: f64, sign: i32) {
-        let Some(k) = cell_index(
-            self.origin,
-            self.params.spacing_mm,
-            self.width,
-            self.height,
-            x,
-            y,
-        ) else {
-            return;
-        };
-        self.add_cell(k, z, intensity, sign);
+    /// What filling the grid reads.
+    fn layout(&self) -> Layout {
+        Layout {
+            origin: self.origin,
+            spacing: self.params.spacing_mm,
+            width: self.width,
+            height: self.height,
+            max_fill_mm: self.params.max_fill_mm,
+            max_fill_step_mm: self.params.max_fill_step_mm,
+        }
     }
 
-    #[inline]
-    fn add_cell(&mut self, k: usize, z: f64, intensity: f64, sign: i32) {
-        self.sum[k] += f64::from(sign) * z;
-        self.intensity[k] += (f64::from(sign) * intensity) as f32;
-        self.count[k] = self.count[k].wrapping_add_signed(sign);
+    /// All the grid's cells, to add to.
+    fn cells(&mut self) -> Cells<'_> {
+        Cells {
+            first: 0,
+            sum: &mut self.sum,
+            intensity: &mut self.intensity,
+            count: &mut self.count,
+        }
+    }
+
+    /// Adds every track of `tracks`, in bands of grid rows filled in parallel ([`Layout::rows_of`]): each band takes
+    /// the tracks that can reach it, in track order, and keeps only its own cells, so every cell receives the same
+    /// additions in the same order as one pass over the tracks would make: the sums are the same to the bit, with
+    /// any number of threads.
+    fn add_tracks(&mut self, tracks: &Tracks) {
+        let layout = self.layout();
+        let threads = rayon::current_num_threads();
+        let bands = (4 * threads).min(self.height / MIN_BAND_ROWS);
+        if threads < 2 || bands < 2 {
+            let mut cells = self.cells();
+            for k in 0..tracks.len() {
+                layout.add_track::<1>(&mut cells, tracks.track(k));
+            }
+            return;
+        }
+        let reach: Vec<Option<(usize, usize)>> = (0..tracks.len())
+            .map(|k| layout.rows_of(tracks.track(k)))
+            .collect();
+        let band = self.height.div_ceil(bands) * self.width;
+        self.sum
+            .par_chunks_mut(band)
+            .zip(self.intensity.par_chunks_mut(band))
+            .zip(self.count.par_chunks_mut(band))
+            .enumerate()
+            .for_each(|(b, ((sum, intensity), count))| {
+                let (j0, j1) = (
+                    b * band / layout.width,
+                    (b * band + sum.len()) / layout.width,
+                );
+                let mut cells = Cells {
+                    first: b * band,
+                    sum,
+                    intensity,
+                    count,
+                };
+                for (k, r) in reach.iter().enumerate() {
+                    if r.is_some_and(|(lo, hi)| hi >= j0 && lo < j1) {
+                        layout.add_track::<1>(&mut cells, tracks.track(k));
+                    }
+                }
+            });
     }
 
     /// Adds the profiles of a scan, in frame order. Each stripe and image row is a track of samples along x (one a
@@ -481,9 +704,7 @@ impl RangeGrid {
     /// a smooth surface bends between samples) the chord is used.
     pub fn accumulate(&mut self, profiles: &[Profile]) {
         let tracks = Tracks::of(profiles);
-        for k in 0..tracks.len() {
-            self.add_track::<1>(tracks.track(k));
-        }
+        self.add_tracks(&tracks);
         self.held = None;
         self.used = true;
     }
@@ -492,9 +713,7 @@ impl RangeGrid {
     /// memory) so that [`RangeGrid::update`] can change some of its points at the cost of their tracks alone.
     pub fn accumulate_to_update(&mut self, profiles: &[Profile]) {
         let tracks = Tracks::of(profiles);
-        for k in 0..tracks.len() {
-            self.add_track::<1>(tracks.track(k));
-        }
+        self.add_tracks(&tracks);
         // A second scan on the same grid: what it holds is no longer one scan's tracks.
         self.held = (!self.used).then_some(tracks);
         self.used = true;
@@ -552,9 +771,11 @@ impl RangeGrid {
         let work: usize = parts.iter().map(|(_, s, i)| s.len() + i.len()).sum();
         // Taking a part back costs what adding it does: past half the samples, adding all afresh is cheaper.
         let afresh = 2 * work > held.samples.len();
+        let layout = self.layout();
         if !afresh {
+            let mut cells = self.cells();
             for (k, samples, intervals) in &parts {
-                self.add_part::<{ -1 }>(held.track(*k), samples, intervals);
+                layout.add_part::<{ -1 }>(&mut cells, held.track(*k), samples, intervals);
             }
         }
         for &(_, s, new) in &news {
@@ -564,12 +785,11 @@ impl RangeGrid {
             self.sum.fill(0.0);
             self.intensity.fill(0.0);
             self.count.fill(0);
-            for k in 0..held.len() {
-                self.add_track::<1>(held.track(k));
-            }
+            self.add_tracks(&held);
         } else {
+            let mut cells = self.cells();
             for (k, samples, intervals) in &parts {
-                self.add_part::<1>(held.track(*k), samples, intervals);
+                layout.add_part::<1>(&mut cells, held.track(*k), samples, intervals);
             }
         }
         self.held = Some(held);
@@ -582,106 +802,6 @@ impl RangeGrid {
         self.count.fill(0);
         self.used = false;
         self.accumulate_to_update(profiles);
-    }
-
-    /// Adds (`SIGN` 1) or takes back (−1) one track: its samples and the cells filled between them.
-    fn add_track<const SIGN: i32>(&mut self, t: &[Sample]) {
-        for (i, s) in t.iter().enumerate() {
-            self.add(s.x, s.y, s.z, s.intensity, SIGN);
-            self.add_interval::<SIGN>(t, i);
-        }
-    }
-
-    /// Adds or takes back samples `samples` of track `t` and the cells filled in its intervals `intervals`.
-    fn add_part<const SIGN: i32>(&mut self, t: &[Sample], samples: &[usize], intervals: &[usize]) {
-        for &i in samples {
-            let s = &t[i];
-            self.add(s.x, s.y, s.z, s.intensity, SIGN);
-        }
-        for &i in intervals {
-            self.add_interval::<SIGN>(t, i);
-        }
-    }
-
-    /// Adds or takes back the cells filled between samples `i` and `i + 1` of track `t` (none when they are not
-    /// linked): they depend on samples `i − 1 ..= i + 2` alone.
-    fn add_interval<const SIGN: i32>(&mut self, t: &[Sample], i: usize) {
-        if i + 1 < t.len() && self.linked(&t[i], &t[i + 1]) {
-            let before = (i > 0 && self.linked(&t[i - 1], &t[i])).then(|| &t[i - 1]);
-            let after = t.get(i + 2).filter(|n| self.linked(&t[i + 1], n));
-            self.fill(&t[i], &t[i + 1], before, after, SIGN);
-        }
-    }
-
-    /// Whether consecutive samples `a` and `b` of a track are joined.
-    fn linked(&self, a: &Sample, b: &Sample) -> bool {
-        b.frame > a.frame
-            && b.frame - a.frame <= MAX_FILL_FRAMES
-            && (b.x - a.x).abs() <= self.params.max_fill_mm
-            && (b.z - a.z).abs() <= self.params.max_fill_step_mm
-    }
-
-    /// Fills the cells strictly between `a` and `b` along x, by the polynomial through them and the linked samples
-    /// around them (x strictly monotonic along the samples used; otherwise fewer of them).
-    fn fill(
-        &mut self,
-        a: &Sample,
-        b: &Sample,
-        before: Option<&Sample>,
-        after: Option<&Sample>,
-        sign: i32,
-    ) {
-        let dx = self.params.spacing_mm[0];
-        let rising = b.x > a.x;
-        let ordered = |p: &Sample, q: &Sample| if rising { q.x > p.x } else { q.x < p.x };
-        // Neighbours much closer to the interval than its own length make a wild polynomial: left out.
-        let span = (b.x - a.x).abs();
-        let before = before.filter(|p| ordered(p, a) && (a.x - p.x).abs() >= 0.5 * span);
-        let after = after.filter(|q| ordered(b, q) && (q.x - b.x).abs() >= 0.5 * span);
-        let mut nodes = [(0.0, 0.0); 4];
-        let mut n = 0;
-        for s in [before, Some(a), Some(b), after].into_iter().flatten() {
-            nodes[n] = (s.x, s.z);
-            n += 1;
-        }
-        let poly = Newton::through(&nodes[..n]);
-        let (xa, xb) = (a.x.min(b.x), a.x.max(b.x));
-        // The columns strictly between the samples, from a cell or two more on each side (truncation, not a
-        // library `floor`; the test below keeps exactly those strictly between). A column's centre is on the grid,
-        // so its cell is known without the division `cell_index` makes; only the row is worked out, by the same
-        // rounding. One division per interval, none per cell.
-        let first = ((xa - self.origin[0]) / dx) as i64;
-        let last = ((xb - self.origin[0]) / dx) as i64 + 1;
-        let inv_span = 1.0 / (b.x - a.x);
-        let dy = self.params.spacing_mm[1];
-        let (width, height) = (index_f64(self.width), index_f64(self.height));
-        for c in first.max(0)..=last {
-            let x = self.origin[0] + c as f64 * dx;
-            if x <= xa || x >= xb {
-                continue;
-            }
-            if c as f64 >= width {
-                break;
-            }
-            let t = (x - a.x) * inv_span;
-            let chord = a.z + t * (b.z - a.z);
-            // The curve may leave the chord by what a smooth surface does between samples, no more (a noisy or
-            // kinked neighbour must not swing it).
-            let z = poly.at(x);
-            let z = if (z - chord).abs() <= MAX_BOW_MM {
-                z
-            } else {
-                chord
-            };
-            let y = a.y + t * (b.y - a.y);
-            // As in `cell_index`; NaN fails the comparisons too.
-            let j = (self.origin[1] - y) / dy + 0.5;
-            if !(j >= 0.0 && j < height) {
-                continue;
-            }
-            let intensity = a.intensity + t * (b.intensity - a.intensity);
-            self.add_cell(floor_index(j) * self.width + c as usize, z, intensity, sign);
-        }
     }
 
     /// The range image: the mean height and intensity of each cell.
