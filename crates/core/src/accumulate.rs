@@ -1020,6 +1020,67 @@ mod tests {
     }
 
     #[test]
+    fn bands_filled_in_parallel_give_the_sums_of_one_pass() {
+        // Three stripes on 80 image rows over 30 frames, each track wandering over several grid rows (a sheet's y
+        // moves with the height under it): the grid filled by one thread and by four, in bands, is the same to the
+        // bit, heights and intensities.
+        let profiles: Vec<Profile> = (0..30)
+            .map(|k| {
+                let mut points = Vec::new();
+                for stripe in 0..3u16 {
+                    for row in 0..80u32 {
+                        let x = 10.0 * f64::from(stripe) - 0.5 * k as f64;
+                        let z = 2.0 * (0.3 * k as f64 + 0.1 * f64::from(row)).sin();
+                        points.push(ProfilePoint {
+                            stripe,
+                            row,
+                            u: 0.0,
+                            x_mm: x,
+                            y_mm: -0.25 * f64::from(row) + 0.4 * z,
+                            z_mm: z,
+                            intensity: 50.0 + f32::from(stripe) + 0.5 * k as f32,
+                        });
+                    }
+                }
+                Profile {
+                    frame: k,
+                    travel_mm: 0.5 * k as f64,
+                    points,
+                }
+            })
+            .collect();
+        let params = RangeParams {
+            spacing_mm: [0.1, 0.1],
+            max_fill_step_mm: 1.0,
+            ..RangeParams::default()
+        };
+        let image_with = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            pool.install(|| {
+                let mut g = RangeGrid::covering(&profiles, params.clone()).expect("grid");
+                assert!(
+                    g.height >= 4 * MIN_BAND_ROWS,
+                    "{} rows: too few for bands",
+                    g.height
+                );
+                g.accumulate(&profiles);
+                g.image()
+            })
+        };
+        let (one, four) = (image_with(1), image_with(4));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(one.measured() > 10_000, "{} cells measured", one.measured());
+        assert_eq!(bits(&one.z), bits(&four.z));
+        assert_eq!(
+            bits(one.intensity.as_deref().expect("intensity")),
+            bits(four.intensity.as_deref().expect("intensity"))
+        );
+    }
+
+    #[test]
     fn an_update_of_a_few_points_redoes_only_their_part_of_a_track() {
         // One stripe, two rows, 40 frames; three points of row 8 move (at the track's start, in its middle, at its
         // end, one of them past the fill's step limit): their samples and the intervals they are nodes of are taken
