@@ -44,6 +44,7 @@ use crate::extract::StripePoint;
 use crate::rules::RuleBase;
 use crate::sensor::MAX_STRIPES;
 use crate::triangulate::FullModel;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use stripe3d_fuzzy::Engine;
 
@@ -534,27 +535,37 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
     if !frames.iter().all(sorted) {
         return 0;
     }
-    for k in 0..frames.len().saturating_sub(1) {
-        let (a, b) = (&frames[k], &frames[k + 1]);
-        let (ra, rb) = (rows_of(a), rows_of(b));
-        let mut q = 0;
-        for &(row, s, e) in &ra {
-            while q < rb.len() && rb[q].0 < row {
-                q += 1;
-            }
-            if q >= rb.len() || rb[q].0 != row {
-                continue;
-            }
-            let (pa, pb) = (&a.points[s..e], &b.points[rb[q].1..rb[q].2]);
-            for (i, j) in row_links(pa, pb, params.link_px) {
-                let (x, y) = (
-                    find(&mut parent, offsets[k] + s + i),
-                    find(&mut parent, offsets[k + 1] + rb[q].1 + j),
-                );
-                if x != y {
-                    parent[x.max(y)] = x.min(y);
+    // The links between consecutive frames, found for every pair of frames in parallel (as global point indices),
+    // then joined into tracks in frame order: the same tracks as one pass makes.
+    let rows: Vec<Vec<(u32, usize, usize)>> = frames.par_iter().map(rows_of).collect();
+    let links: Vec<Vec<(usize, usize)>> = (0..frames.len().saturating_sub(1))
+        .into_par_iter()
+        .map(|k| {
+            let (a, b) = (&frames[k], &frames[k + 1]);
+            let (ra, rb) = (&rows[k], &rows[k + 1]);
+            let mut out = Vec::new();
+            let mut q = 0;
+            for &(row, s, e) in ra {
+                while q < rb.len() && rb[q].0 < row {
+                    q += 1;
                 }
+                if q >= rb.len() || rb[q].0 != row {
+                    continue;
+                }
+                let (pa, pb) = (&a.points[s..e], &b.points[rb[q].1..rb[q].2]);
+                out.extend(
+                    row_links(pa, pb, params.link_px)
+                        .into_iter()
+                        .map(|(i, j)| (offsets[k] + s + i, offsets[k + 1] + rb[q].1 + j)),
+                );
             }
+            out
+        })
+        .collect();
+    for (i, j) in links.into_iter().flatten() {
+        let (x, y) = (find(&mut parent, i), find(&mut parent, j));
+        if x != y {
+            parent[x.max(y)] = x.min(y);
         }
     }
     // Votes per track: (label, count, first frame, last frame), few labels per track; `votes` from the labels the
@@ -586,8 +597,7 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
     let mut recovered = 0;
     let mut proposal: Vec<Option<u16>> = Vec::new();
     for (k, f) in frames.iter_mut().enumerate() {
-        let rows = rows_of(f);
-        for &(_, s, e) in &rows {
+        for &(_, s, e) in &rows[k] {
             // The track's label for every point of the row it may change: dropped points, and points only the
             // segment vote coded (their row could not settle them) that their track reads otherwise.
             proposal.clear();

@@ -51,6 +51,7 @@ use crate::extract::steger::{MAX_SCALE, MIN_SCALE};
 use crate::sensor::{Camera, Sensor};
 use crate::triangulate::{FullModel, Plane};
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 /// Largest height correction applied, mm: a larger prediction means the surface is not smooth at the sheet's scale
 /// (an edge, a step) and the model does not hold.
@@ -351,17 +352,25 @@ pub fn correct(
     let mut range = grid.image();
     // The points on curved surfaces (profile, point, measured height): the others keep their heights.
     let maps = DerivativeMaps::of(&range);
-    let mut curved: Vec<(usize, usize, f64)> = Vec::new();
-    for (i, profile) in profiles.iter().enumerate() {
-        for (j, q) in profile.points.iter().enumerate() {
-            if maps
-                .at(q.x_mm, q.y_mm)
-                .is_some_and(|d| d.fxx.abs() >= MIN_CURVATURE || d.fxy.abs() >= MIN_CURVATURE)
-            {
-                curved.push((i, j, q.z_mm));
-            }
-        }
-    }
+    // Every point is looked at (frames in parallel, kept in order).
+    let curved: Vec<(usize, usize, f64)> = profiles
+        .par_iter()
+        .enumerate()
+        .map(|(i, profile)| {
+            profile
+                .points
+                .iter()
+                .enumerate()
+                .filter(|(_, q)| {
+                    maps.at(q.x_mm, q.y_mm).is_some_and(|d| {
+                        d.fxx.abs() >= MIN_CURVATURE || d.fxy.abs() >= MIN_CURVATURE
+                    })
+                })
+                .map(|(j, q)| (i, j, q.z_mm))
+                .collect::<Vec<_>>()
+        })
+        .flatten()
+        .collect();
     if curved.is_empty() {
         return Ok((range, 0));
     }

@@ -12,6 +12,7 @@ use crate::code::{
 use crate::curvature::{CurvatureBias, correct};
 use crate::extract::{ExtractParams, Extraction, Extractor};
 use crate::image::{ImageView, Pixel};
+use rayon::prelude::*;
 
 /// The per-frame stages of a scan with their reusable buffers. One per thread; clone it to get another.
 #[derive(Debug, Clone)]
@@ -95,11 +96,14 @@ pub fn profiles_of(
 ) -> (Vec<Profile>, CodingStats, usize) {
     let recovered = reconcile(frames, &TemporalParams::default());
     let mut stats = CodingStats::default();
+    for f in frames.iter() {
+        stats.add(&f.coding.stats);
+    }
+    // Frames triangulated in parallel (each on its own: the same profiles in the same order).
     let profiles = frames
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(k, f)| {
-            stats.add(&f.coding.stats);
             let mut p = Profile::default();
             profile_into(
                 k,
