@@ -594,9 +594,11 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
         }
     }
     let roots: Vec<usize> = (0..total).map(|i| find(&mut parent, i)).collect();
-    let mut recovered = 0;
-    let mut proposal: Vec<Option<u16>> = Vec::new();
-    for (k, f) in frames.iter_mut().enumerate() {
+    let (votes, segment_votes) = (&votes, &segment_votes);
+    // Each frame's rows are decided from the tracks alone: frames in parallel.
+    let recovered_in = |(k, f): (usize, &mut CodedFrame)| -> usize {
+        let mut recovered = 0;
+        let mut proposal: Vec<Option<u16>> = Vec::new();
         for &(_, s, e) in &rows[k] {
             // The track's label for every point of the row it may change: dropped points, and points only the
             // segment vote coded (their row could not settle them) that their track reads otherwise.
@@ -823,8 +825,9 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
                 recovered += 1;
             }
         }
-    }
-    recovered
+        recovered
+    };
+    frames.par_iter_mut().enumerate().map(recovered_in).sum()
 }
 
 /// A function of one or two inputs sampled on a regular grid, read back with (bi)linear interpolation and the
