@@ -277,24 +277,27 @@ fn smoothed(range: &RangeImage, sigma: [f64; 2]) -> Vec<f64> {
     let along_x = |src: &[(f64, f64)], k: &[f64]| -> Vec<(f64, f64)> {
         let r = k.len() / 2;
         let mut out = vec![(0.0, 0.0); w * h];
-        for (row, o) in src.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
-            for (i, cell) in o.iter_mut().enumerate() {
-                let lo = i.saturating_sub(r);
-                let hi = (i + r).min(w - 1);
-                let mut acc = (0.0, 0.0);
-                for (kv, &(vz, vw)) in k[lo + r - i..].iter().zip(&row[lo..=hi]) {
-                    acc.0 += kv * vz;
-                    acc.1 += kv * vw;
+        // Rows in parallel (each cell's sum is the same whichever thread makes it).
+        src.par_chunks_exact(w)
+            .zip(out.par_chunks_exact_mut(w))
+            .for_each(|(row, o)| {
+                for (i, cell) in o.iter_mut().enumerate() {
+                    let lo = i.saturating_sub(r);
+                    let hi = (i + r).min(w - 1);
+                    let mut acc = (0.0, 0.0);
+                    for (kv, &(vz, vw)) in k[lo + r - i..].iter().zip(&row[lo..=hi]) {
+                        acc.0 += kv * vz;
+                        acc.1 += kv * vw;
+                    }
+                    *cell = acc;
                 }
-                *cell = acc;
-            }
-        }
+            });
         out
     };
     let along_y = |src: &[(f64, f64)], k: &[f64]| -> Vec<(f64, f64)> {
         let r = k.len() / 2;
         let mut out = vec![(0.0, 0.0); w * h];
-        for (j, o) in out.chunks_exact_mut(w).enumerate() {
+        out.par_chunks_exact_mut(w).enumerate().for_each(|(j, o)| {
             let lo = j.saturating_sub(r);
             let hi = (j + r).min(h - 1);
             for (kv, jj) in k[lo + r - j..].iter().zip(lo..=hi) {
@@ -303,7 +306,7 @@ fn smoothed(range: &RangeImage, sigma: [f64; 2]) -> Vec<f64> {
                     cell.1 += kv * vw;
                 }
             }
-        }
+        });
         out
     };
     let z: Vec<(f64, f64)> = range
