@@ -571,12 +571,25 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
     // Votes per track: (label, count, first frame, last frame), few labels per track; `votes` from the labels the
     // points' own rows settled, `segment_votes` from the labels only the segment vote gave (a consistent misreading
     // can spread through those, so they count for less, see [`TemporalParams::overrule_segment_votes`]).
+    // Every point's track (its root), points in parallel (reading the links only: the same roots).
+    let roots: Vec<usize> = {
+        let parent = &parent;
+        (0..total)
+            .into_par_iter()
+            .map(|mut a| {
+                while parent[a] != a {
+                    a = parent[a];
+                }
+                a
+            })
+            .collect()
+    };
     let (mut votes, mut segment_votes) = (Votes::new(total), Votes::new(total));
     for (k, f) in frames.iter().enumerate() {
         for (i, l) in f.coding.stripes.iter().enumerate() {
             let Some(l) = *l else { continue };
             let settled = f.coding.row_confident.get(i).copied().unwrap_or(false);
-            let root = find(&mut parent, offsets[k] + i);
+            let root = roots[offsets[k] + i];
             let into = if settled {
                 &mut votes
             } else {
@@ -593,7 +606,6 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
             }
         }
     }
-    let roots: Vec<usize> = (0..total).map(|i| find(&mut parent, i)).collect();
     let (votes, segment_votes) = (&votes, &segment_votes);
     // Each frame's rows are decided from the tracks alone: frames in parallel.
     let recovered_in = |(k, f): (usize, &mut CodedFrame)| -> usize {
