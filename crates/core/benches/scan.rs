@@ -1,6 +1,7 @@
 //! Per-frame cost of the stages after extraction: stripe coding, triangulation, accumulation, on a 648x480 frame
 //! of the paper's set-up with 11 stripes on a 10 mm plate (5,280 points).
 //! A whole depth image (22 frames) with and without the curvature-bias correction, on a wavy surface.
+//! One core unless `RAYON_NUM_THREADS` is set.
 
 use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::{ModelKind, Profile, RangeGrid, RangeParams, profile_into};
@@ -11,6 +12,14 @@ use stripe3d_core::extract::StripePoint;
 use stripe3d_core::triangulate::FullModel;
 
 fn main() {
+    // One core, as the figures are quoted: the chain's parallel parts (reconciliation, triangulation, accumulation)
+    // on a pool of one thread, unless RAYON_NUM_THREADS asks for more.
+    if std::env::var_os("RAYON_NUM_THREADS").is_none() {
+        // Fails only when a global pool exists already, which nothing here makes.
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build_global();
+    }
     divan::main();
 }
 
