@@ -568,9 +568,6 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
             parent[x.max(y)] = x.min(y);
         }
     }
-    // Votes per track: (label, count, first frame, last frame), few labels per track; `votes` from the labels the
-    // points' own rows settled, `segment_votes` from the labels only the segment vote gave (a consistent misreading
-    // can spread through those, so they count for less, see [`TemporalParams::overrule_segment_votes`]).
     // Every point's track (its root), points in parallel (reading the links only: the same roots).
     let roots: Vec<usize> = {
         let parent = &parent;
@@ -584,6 +581,9 @@ pub fn reconcile(frames: &mut [CodedFrame], params: &TemporalParams) -> usize {
             })
             .collect()
     };
+    // Votes per track: (label, count, first frame, last frame), few labels per track; `votes` from the labels the
+    // points' own rows settled, `segment_votes` from the labels only the segment vote gave (a consistent misreading
+    // can spread through those, so they count for less, see [`TemporalParams::overrule_segment_votes`]).
     let (mut votes, mut segment_votes) = (Votes::new(total), Votes::new(total));
     for (k, f) in frames.iter().enumerate() {
         for (i, l) in f.coding.stripes.iter().enumerate() {
