@@ -235,9 +235,24 @@ impl CodingParams {
             ("outlier_cost", self.outlier_cost),
             ("margin", self.margin),
             ("segment_override_cost", self.segment_override_cost),
+            ("tilt_cost_per_mm", self.tilt_cost_per_mm),
+            ("belt_unlike_cost", self.belt_unlike_cost),
+            ("faint_intensity", self.faint_intensity),
+            ("fragment_intensity", self.fragment_intensity),
         ] {
             if v < 0.0 {
                 return bad(field, v, "must be 0 or more");
+            }
+        }
+        // Shares and ratios.
+        for (field, v) in [
+            ("min_vote_share", self.min_vote_share),
+            ("min_voting_share", self.min_voting_share),
+            ("link_intensity_ratio", self.link_intensity_ratio),
+            ("belt_intensity_ratio", self.belt_intensity_ratio),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return bad(field, v, "must be 0 to 1");
             }
         }
         if self.max_outlier_run > MAX_OUTLIER_RUN {
@@ -254,52 +269,8 @@ impl CodingParams {
                 "must be above min_height_mm",
             );
         }
-        if !(0.0..=1.0).contains(&self.min_vote_share) {
-            return bad("min_vote_share", self.min_vote_share, "must be 0 to 1");
-        }
-        if !(0.0..=1.0).contains(&self.min_voting_share) {
-            return bad("min_voting_share", self.min_voting_share, "must be 0 to 1");
-        }
         if self.link_px <= 0.0 {
             return bad("link_px", self.link_px, "must be greater than zero");
-        }
-        if !(0.0..=1.0).contains(&self.link_intensity_ratio) {
-            return bad(
-                "link_intensity_ratio",
-                self.link_intensity_ratio,
-                "must be 0 to 1",
-            );
-        }
-        if self.tilt_cost_per_mm < 0.0 {
-            return bad(
-                "tilt_cost_per_mm",
-                self.tilt_cost_per_mm,
-                "must be 0 or more",
-            );
-        }
-        if !(0.0..=1.0).contains(&self.belt_intensity_ratio) {
-            return bad(
-                "belt_intensity_ratio",
-                self.belt_intensity_ratio,
-                "must be 0 to 1",
-            );
-        }
-        if self.belt_unlike_cost < 0.0 {
-            return bad(
-                "belt_unlike_cost",
-                self.belt_unlike_cost,
-                "must be 0 or more",
-            );
-        }
-        if self.faint_intensity < 0.0 {
-            return bad("faint_intensity", self.faint_intensity, "must be 0 or more");
-        }
-        if self.fragment_intensity < 0.0 {
-            return bad(
-                "fragment_intensity",
-                self.fragment_intensity,
-                "must be 0 or more",
-            );
         }
         Ok(())
     }
