@@ -95,6 +95,15 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
+    /// Extraction (and later calibration and scans) on a validation set laid out as ../shared/validation/, scored as
+    /// its README says; the last line is a summary.
+    Validation {
+        /// The set's folder (holding extract/, calib/, scans/).
+        dir: PathBuf,
+        /// Sub-pixel estimator.
+        #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+        method: String,
+    },
     /// Extraction speed on your own frames: decodes them once, extracts for a few seconds.
     Throughput {
         /// Grey images (PNG, PGM, TIFF), or folders of them.
@@ -154,6 +163,10 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             *frames,
             *seed,
             *verbose,
+        ),
+        BenchCommand::Validation { dir, method } => crate::validation_bench::bench_validation(
+            dir,
+            &params(method, None, AxisArg::Rows, PolicyArg::All)?,
         ),
         BenchCommand::Throughput {
             images,

@@ -11,6 +11,7 @@ mod learning_bench;
 mod scan;
 mod sensor_bench;
 mod simulate;
+mod validation_bench;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

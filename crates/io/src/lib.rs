@@ -19,6 +19,7 @@ pub mod images;
 pub mod knowledge;
 pub mod report;
 pub mod truth;
+pub mod validation;
 
 pub use calib::{calibration_to_toml, read_calibration};
 pub use config::{read_coding_params, read_scene, read_sensor, scene_to_toml, sensor_to_toml};

@@ -107,6 +107,114 @@ impl Score {
     }
 }
 
+/// Distance (pixels) beyond which a reported point is false under the validation sets' rule: farther than this from
+/// every true centre of its row (`../shared/validation/README.md`).
+pub const VALIDATION_FALSE_PX: f64 = 1.5;
+
+/// Extraction scored by the validation sets' rule: for each true centre, the nearest reported point of its row
+/// within [`MATCH_RADIUS_PX`] finds it, each reported point used once (closest pairs first); a reported point
+/// farther than [`VALIDATION_FALSE_PX`] from every true centre of its row is false.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct RowScore {
+    /// True centres.
+    pub truth: usize,
+    /// True centres found.
+    pub found: usize,
+    /// Reported points.
+    pub reported: usize,
+    /// Reported points farther than [`VALIDATION_FALSE_PX`] from every true centre of their row.
+    pub false_points: usize,
+    /// Sum of the signed errors (reported − true) of the found centres, pixels.
+    pub sum_error: f64,
+    /// Sum of their squares.
+    pub sum_sq_error: f64,
+}
+
+impl RowScore {
+    /// Scores one frame: true centres and reported points as `(row, x)`, in any order.
+    pub fn of(truth: &[(u32, f64)], reported: &[(u32, f64)]) -> Self {
+        let mut t: Vec<(u32, f64)> = truth.to_vec();
+        let mut r: Vec<(u32, f64)> = reported.to_vec();
+        let by_row = |a: &(u32, f64), b: &(u32, f64)| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1));
+        t.sort_by(by_row);
+        r.sort_by(by_row);
+        let mut s = RowScore {
+            truth: t.len(),
+            reported: r.len(),
+            ..RowScore::default()
+        };
+        let (mut i, mut j) = (0, 0);
+        let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+        while i < t.len() || j < r.len() {
+            let row = match (t.get(i), r.get(j)) {
+                (Some(a), Some(b)) => a.0.min(b.0),
+                (Some(a), None) => a.0,
+                (None, Some(b)) => b.0,
+                (None, None) => break,
+            };
+            let ti = i + t[i..].iter().take_while(|p| p.0 == row).count();
+            let rj = j + r[j..].iter().take_while(|p| p.0 == row).count();
+            let (tr, rr) = (&t[i..ti], &r[j..rj]);
+            pairs.clear();
+            for (a, tp) in tr.iter().enumerate() {
+                for (b, rp) in rr.iter().enumerate() {
+                    let d = (rp.1 - tp.1).abs();
+                    if d <= MATCH_RADIUS_PX {
+                        pairs.push((d, a, b));
+                    }
+                }
+            }
+            pairs.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2)));
+            let (mut t_used, mut r_used) = (vec![false; tr.len()], vec![false; rr.len()]);
+            for &(_, a, b) in &pairs {
+                if t_used[a] || r_used[b] {
+                    continue;
+                }
+                t_used[a] = true;
+                r_used[b] = true;
+                let e = rr[b].1 - tr[a].1;
+                s.found += 1;
+                s.sum_error += e;
+                s.sum_sq_error += e * e;
+            }
+            s.false_points += rr
+                .iter()
+                .filter(|rp| {
+                    tr.iter()
+                        .all(|tp| (rp.1 - tp.1).abs() > VALIDATION_FALSE_PX)
+                })
+                .count();
+            (i, j) = (ti, rj);
+        }
+        s
+    }
+
+    /// Adds another frame's score.
+    pub fn add(&mut self, o: &RowScore) {
+        self.truth += o.truth;
+        self.found += o.found;
+        self.reported += o.reported;
+        self.false_points += o.false_points;
+        self.sum_error += o.sum_error;
+        self.sum_sq_error += o.sum_sq_error;
+    }
+
+    /// Found over true centres.
+    pub fn recall(&self) -> f64 {
+        self.found as f64 / self.truth.max(1) as f64
+    }
+
+    /// False over reported points.
+    pub fn false_rate(&self) -> f64 {
+        self.false_points as f64 / self.reported.max(1) as f64
+    }
+
+    /// RMS error of the found centres, pixels.
+    pub fn rms(&self) -> f64 {
+        (self.sum_sq_error / self.found.max(1) as f64).sqrt()
+    }
+}
+
 /// Cramér-Rao bound (pixels) on the position of a point-sampled Gaussian stripe of `amplitude` and `sigma`
 /// (pixels) over `background`, whose centre lies `phase` pixels from the nearest pixel centre, with per-pixel noise
 /// variance `variance(expected value)`: 1 / sqrt(Σ (∂f_i/∂c)² / var_i), the bound for an unbiased estimate of the
@@ -291,6 +399,29 @@ pub fn score_coding(coded: &CodedFrame, truth: &TruthRows) -> CodingScore {
         }
     }
     s
+}
+
+#[cfg(test)]
+mod row_score_tests {
+    use super::*;
+
+    #[test]
+    fn each_reported_point_finds_one_true_centre_and_far_ones_are_false() {
+        let truth = [(0, 10.0), (0, 10.8), (0, 30.0), (1, 5.0)];
+        // 10.5 is within reach of both 10.0 and 10.8 but is used once (for 10.8, the closer); 31.0 is within 1.5 px of a
+        // true centre (not false, not found); 40.0 and the point on row 2 (no truth) are false.
+        let reported = [(0, 10.5), (0, 31.0), (0, 40.0), (1, 5.1), (2, 7.0)];
+        let s = RowScore::of(&truth, &reported);
+        assert_eq!((s.truth, s.found, s.reported, s.false_points), (4, 2, 5, 2));
+        assert!(
+            (s.rms() - ((0.09 + 0.01) / 2.0f64).sqrt()).abs() < 1e-9,
+            "{}",
+            s.rms()
+        );
+        assert!((s.recall() - 0.5).abs() < 1e-12 && (s.false_rate() - 0.4).abs() < 1e-12);
+        let none = RowScore::of(&truth, &[]);
+        assert_eq!((none.found, none.false_points, none.rms()), (0, 0, 0.0));
+    }
 }
 
 #[cfg(test)]
