@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use stripe3d_core::extract::{
     Axis, DEFAULT_CUT_ASYMMETRY, ExtractParams, Extraction, Extractor, Method, Policy, Threshold,
 };
-use stripe3d_io::images::{FrameData, read_frame_native};
+use stripe3d_io::images::{FrameData, Laser, read_frame_native_as};
 
 /// Scan line direction.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -50,7 +50,7 @@ pub fn method_names() -> Vec<&'static str> {
 /// Arguments of `stripe3d extract`.
 #[derive(Debug, Args)]
 pub struct ExtractArgs {
-    /// Grey images: PNG (8 or 16 bit), PGM or TIFF. Colour images are refused (convert them to grey first).
+    /// Images: PNG (8 or 16 bit), JPEG, PGM or TIFF, grey or colour (RGB, RGBA; see --laser).
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// Sub-pixel estimator.
@@ -71,6 +71,11 @@ pub struct ExtractArgs {
     /// Which stripes to keep when a scan line has several.
     #[arg(long, value_enum, default_value = "all")]
     pub policy: PolicyArg,
+    /// What the sensor sees of a colour frame: auto (the most saturated colour), red, green or blue (that colour's
+    /// excess over the mean of the other two, max(0, C - (C1 + C2) / 2)), luma, one channel (r, g, b), or weights
+    /// WR,WG,WB (clamp(wr R + wg G + wb B)). Grey frames are read as they are.
+    #[arg(long, default_value = "auto", value_parser = parse_laser)]
+    pub laser: Laser,
     /// Largest image accepted, pixels.
     #[arg(long, default_value_t = 64 * 1024 * 1024)]
     pub max_pixels: usize,
@@ -99,7 +104,7 @@ pub fn params(
         )
     })?;
     let threshold = match threshold {
-        None => Threshold::Auto,
+        None => Threshold::Local,
         Some(t) if t.is_finite() && t >= 0.0 => Threshold::Fixed(t),
         Some(t) => bail!("--threshold {t}: give a number of grey levels, 0 or more"),
     };
@@ -119,6 +124,11 @@ pub fn params(
         },
         ..ExtractParams::default()
     })
+}
+
+/// Parses `--laser`.
+pub fn parse_laser(s: &str) -> Result<Laser, String> {
+    Laser::parse(s)
 }
 
 /// Parses `--max-asymmetry` and `--cut-asymmetry`: a number from 0 to 1, or `off` (infinity).
@@ -156,7 +166,7 @@ pub fn extract(args: &ExtractArgs) -> Result<()> {
         .map_init(
             || Extractor::new(params.clone()),
             |ex, path| {
-                let frame = read_frame_native(path, args.max_pixels)?;
+                let frame = read_frame_native_as(path, args.max_pixels, Some(args.laser))?;
                 let ex = ex.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
                 let mut out = Extraction::default();
                 run_frame(ex, &frame, &mut out);

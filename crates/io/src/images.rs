@@ -125,9 +125,128 @@ pub struct LoadedFrame {
     pub bits: u8,
 }
 
-/// Reads a grey frame keeping its bit depth (8-bit frames stay 8-bit, which extraction scans fastest).
+/// What the sensor sees of a colour frame: one grey value per pixel from its red, green and blue values.
+///
+/// For a laser of one colour, the *colour excess* `max(0, C - (C1 + C2) / 2)` of its channel `C` over the mean of
+/// the other two: white and grey light (ambient, printed texture, a white board) has equal channels and cancels,
+/// while the laser, nearly monochromatic, stands out. A plain channel, a weighted sum (clamped to the channel's
+/// range) and Rec. 601 luma are there for cameras whose filters mix the laser into several channels. A grey frame is
+/// read as it is whatever is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Laser {
+    /// Colour frames: the colour excess (red, green or blue) with the largest sum over the frame — the laser is the
+    /// most saturated light in a laser-line picture.
+    #[default]
+    Auto,
+    /// `max(0, R - (G + B) / 2)`.
+    Red,
+    /// `max(0, G - (R + B) / 2)`.
+    Green,
+    /// `max(0, B - (R + G) / 2)`.
+    Blue,
+    /// One channel as it is: 0 red, 1 green, 2 blue.
+    Channel(usize),
+    /// `clamp(wr R + wg G + wb B, 0, full scale)`.
+    Weights([f64; 3]),
+    /// Rec. 601 luma, `0.299 R + 0.587 G + 0.114 B`.
+    Luma,
+}
+
+impl Laser {
+    /// Parses `auto`, `red`, `green`, `blue`, `luma`, `r`, `g`, `b` (one channel) or `WR,WG,WB` (weights).
+    pub fn parse(s: &str) -> Result<Laser, String> {
+        let t = s.trim().to_ascii_lowercase();
+        Ok(match t.as_str() {
+            "auto" => Laser::Auto,
+            "red" => Laser::Red,
+            "green" => Laser::Green,
+            "blue" => Laser::Blue,
+            "luma" | "grey" | "gray" => Laser::Luma,
+            "r" => Laser::Channel(0),
+            "g" => Laser::Channel(1),
+            "b" => Laser::Channel(2),
+            _ => {
+                let w: Vec<&str> = t.split(',').collect();
+                let parsed: Vec<f64> = w
+                    .iter()
+                    .filter_map(|v| v.trim().parse::<f64>().ok())
+                    .filter(|v| v.is_finite())
+                    .collect();
+                if w.len() != 3 || parsed.len() != 3 {
+                    return Err(format!(
+                        "`{s}`: give auto, red, green, blue, luma, one channel (r, g or b) or three weights \
+                         WR,WG,WB (e.g. -0.5,1,-0.5)"
+                    ));
+                }
+                Laser::Weights([parsed[0], parsed[1], parsed[2]])
+            }
+        })
+    }
+
+    /// The grey value of one pixel, `full` the channels' full scale.
+    fn grey(self, [r, g, b]: [f64; 3], full: f64) -> f64 {
+        let excess = |c: f64, o1: f64, o2: f64| (c - 0.5 * (o1 + o2)).max(0.0);
+        match self {
+            Laser::Red => excess(r, g, b),
+            Laser::Green => excess(g, r, b),
+            Laser::Blue => excess(b, r, g),
+            Laser::Channel(c) => [r, g, b][c.min(2)],
+            Laser::Weights([wr, wg, wb]) => (wr * r + wg * g + wb * b).clamp(0.0, full),
+            Laser::Luma => 0.299 * r + 0.587 * g + 0.114 * b,
+            Laser::Auto => excess(r, g, b),
+        }
+    }
+}
+
+/// The grey frame a colour image gives for `laser` (8-bit channels stay 8-bit).
+fn colour_to_grey(
+    rgb: &[[u16; 3]],
+    w: usize,
+    h: usize,
+    bits: u8,
+    laser: Laser,
+) -> Result<LoadedFrame, String> {
+    let full = if bits == 8 { 255.0 } else { 65535.0 };
+    let laser = match laser {
+        Laser::Auto => {
+            let mut sums = [0f64; 3];
+            for p in rgb {
+                let [r, g, b] = p.map(f64::from);
+                sums[0] += Laser::Red.grey([r, g, b], full);
+                sums[1] += Laser::Green.grey([r, g, b], full);
+                sums[2] += Laser::Blue.grey([r, g, b], full);
+            }
+            let best = (0..3)
+                .max_by(|&a, &b| sums[a].total_cmp(&sums[b]))
+                .unwrap_or(0);
+            [Laser::Red, Laser::Green, Laser::Blue][best]
+        }
+        other => other,
+    };
+    let data: Vec<u16> = rgb
+        .iter()
+        .map(|p| laser.grey(p.map(f64::from), full).round().clamp(0.0, full) as u16)
+        .collect();
+    Ok(LoadedFrame {
+        image: Image::from_vec(w, h, data).map_err(|e| e.to_string())?,
+        bits,
+    })
+}
+
+/// Reads a grey frame keeping its bit depth (8-bit frames stay 8-bit, which extraction scans fastest); a colour
+/// frame is refused.
 pub fn read_frame_native(path: &Path, max_pixels: usize) -> Result<FrameData, IoError> {
-    let f = read_frame_limited(path, max_pixels)?;
+    read_frame_native_as(path, max_pixels, None)
+}
+
+/// [`read_frame_native`], colour frames (RGB, RGBA, 8 or 16 bits a channel; PNG, JPEG, TIFF) turned grey as `laser`
+/// says; `None` refuses them.
+pub fn read_frame_native_as(
+    path: &Path,
+    max_pixels: usize,
+    laser: Option<Laser>,
+) -> Result<FrameData, IoError> {
+    let f = read_frame_limited(path, max_pixels, laser)?;
     let (w, h) = (f.image.width(), f.image.height());
     Ok(if f.bits == 8 {
         let data: Vec<u8> = f.image.data().iter().map(|&v| v as u8).collect();
@@ -143,12 +262,16 @@ pub fn read_frame_native(path: &Path, max_pixels: usize) -> Result<FrameData, Io
 /// Reads a grey frame (PNG 8/16-bit, PGM, TIFF). Colour images are refused: a stripe camera is monochrome and a
 /// silent conversion would hide a wrong file.
 pub fn read_frame(path: &Path) -> Result<LoadedFrame, IoError> {
-    read_frame_limited(path, usize::MAX)
+    read_frame_limited(path, usize::MAX, None)
 }
 
 /// [`read_frame`], refusing an image of more than `max_pixels` pixels from its header, before anything is decoded
 /// (a damaged or hostile header must not make us allocate gigabytes).
-fn read_frame_limited(path: &Path, max_pixels: usize) -> Result<LoadedFrame, IoError> {
+fn read_frame_limited(
+    path: &Path,
+    max_pixels: usize,
+    laser: Option<Laser>,
+) -> Result<LoadedFrame, IoError> {
     let bad = |message: String| IoError::Image {
         path: path.to_path_buf(),
         message,
@@ -165,7 +288,7 @@ fn read_frame_limited(path: &Path, max_pixels: usize) -> Result<LoadedFrame, IoE
         })?;
     let (w, h) = reader
         .into_dimensions()
-        .map_err(|e| bad(format!("not a readable PNG, PGM or TIFF image: {e}")))?;
+        .map_err(|e| bad(format!("not a readable PNG, JPEG, PGM or TIFF image: {e}")))?;
     if w == 0 || h == 0 || w > MAX_READ_SIDE || h > MAX_READ_SIDE {
         return Err(bad(format!(
             "{w}x{h} pixels: each side must be 1 to {MAX_READ_SIDE}"
@@ -190,6 +313,14 @@ fn read_frame_limited(path: &Path, max_pixels: usize) -> Result<LoadedFrame, IoE
         .decode()
         .map_err(|e| bad(format!("cannot decode (truncated or damaged?): {e}")))?;
     let (w, h) = (img.width() as usize, img.height() as usize);
+    if let Some(l) = laser.filter(|l| !matches!(l, Laser::Auto | Laser::Luma))
+        && !img.color().has_color()
+    {
+        return Err(bad(format!(
+            "is a grey image: --laser {l:?} names a colour channel it does not have (use auto or luma, or leave \
+             --laser out)"
+        )));
+    }
     match img {
         image::DynamicImage::ImageLuma8(g) => Ok(LoadedFrame {
             image: Image::from_vec(w, h, g.into_raw().into_iter().map(u16::from).collect())
@@ -200,8 +331,27 @@ fn read_frame_limited(path: &Path, max_pixels: usize) -> Result<LoadedFrame, IoE
             image: Image::from_vec(w, h, g.into_raw()).map_err(|e| bad(e.to_string()))?,
             bits: 16,
         }),
+        other if laser.is_some() && other.color().has_color() => {
+            let laser = laser.unwrap_or_default();
+            let deep = other.color().bytes_per_pixel() > 4;
+            let rgb: Vec<[u16; 3]> = if deep {
+                other
+                    .into_rgb16()
+                    .pixels()
+                    .map(|p| [p.0[0], p.0[1], p.0[2]])
+                    .collect()
+            } else {
+                other
+                    .into_rgb8()
+                    .pixels()
+                    .map(|p| p.0.map(u16::from))
+                    .collect()
+            };
+            colour_to_grey(&rgb, w, h, if deep { 16 } else { 8 }, laser).map_err(bad)
+        }
         other => Err(bad(format!(
-            "is a {:?} image; stripe3d reads grey (monochrome) 8- or 16-bit frames only: convert it to grey first",
+            "is a {:?} image; give --laser (red, green, blue, a channel or weights) to say what the sensor sees of a \
+             colour frame, or convert it to grey",
             other.color()
         ))),
     }
