@@ -1,7 +1,7 @@
 //! Safe file writing: to a temporary name in the destination folder, then renamed into place.
 
 use crate::IoError;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Writes `bytes` to `path` atomically: a reader never sees a partly written file under that name.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
@@ -46,6 +46,24 @@ pub fn read_text(path: &Path) -> Result<String, IoError> {
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// The entries of a folder, sorted by path.
+pub(crate) fn read_dir(path: &Path) -> Result<Vec<PathBuf>, IoError> {
+    let mut out = Vec::new();
+    let entries = std::fs::read_dir(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    for e in entries {
+        let e = e.map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        out.push(e.path());
+    }
+    out.sort();
+    Ok(out)
 }
 
 #[cfg(test)]

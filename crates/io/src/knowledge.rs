@@ -12,23 +12,6 @@ fn kb_error(dir: &Path, e: stripe3d_kb::KbError) -> IoError {
     }
 }
 
-fn read_dir(path: &Path) -> Result<Vec<PathBuf>, IoError> {
-    let mut out = Vec::new();
-    let entries = std::fs::read_dir(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    for e in entries {
-        let e = e.map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        out.push(e.path());
-    }
-    out.sort();
-    Ok(out)
-}
-
 fn rel(dir: &Path, p: &Path) -> String {
     p.strip_prefix(dir)
         .unwrap_or(p)
@@ -58,7 +41,7 @@ pub fn read_kb(dir: &Path) -> Result<KnowledgeBase, IoError> {
     for sub in ["products", "processes", "methods"] {
         let d = dir.join(sub);
         if d.is_dir() {
-            paths.extend(read_dir(&d)?.into_iter().filter(|p| {
+            paths.extend(crate::files::read_dir(&d)?.into_iter().filter(|p| {
                 !p.file_name()
                     .is_some_and(|n| n.to_string_lossy().starts_with('.'))
             }));
@@ -67,7 +50,7 @@ pub fn read_kb(dir: &Path) -> Result<KnowledgeBase, IoError> {
     // Rule bases: .fll within two levels (rules/surface.fll).
     let mut stack = vec![(dir.to_path_buf(), 0)];
     while let Some((d, depth)) = stack.pop() {
-        for p in read_dir(&d)? {
+        for p in crate::files::read_dir(&d)? {
             if p.is_dir() && depth < 2 {
                 stack.push((p, depth + 1));
             } else if p.extension().is_some_and(|e| e == "fll") {

@@ -33,27 +33,10 @@ pub struct ExtractCase {
     pub sensor: Option<PathBuf>,
 }
 
-fn read_dir_sorted(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
-    let rd = std::fs::read_dir(dir).map_err(|source| IoError::Read {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let mut out = Vec::new();
-    for e in rd {
-        let e = e.map_err(|source| IoError::Read {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-        out.push(e.path());
-    }
-    out.sort();
-    Ok(out)
-}
-
 /// The frames of `dir` (an `extract/` folder): every `NAME.png` that has a `NAME.truth.csv`, in name order.
 pub fn extract_cases(dir: &Path) -> Result<Vec<ExtractCase>, IoError> {
     let mut out = Vec::new();
-    for p in read_dir_sorted(dir)? {
+    for p in crate::files::read_dir(dir)? {
         let Some(name) = p
             .file_name()
             .and_then(|n| n.to_str())

@@ -56,6 +56,8 @@ impl SumScale {
 
 /// Sum of the weights of the across-line kernel `[1, 2, 1]`.
 pub const SMOOTH_GAIN: u32 = 4;
+/// What the kernel `[1, 2, 1]` does to the standard deviation of independent noise: `sqrt(1 + 4 + 1)`.
+pub const SMOOTH_NOISE_GAIN: f64 = 2.449_489_742_783_178;
 
 /// The detection signal: `out[i] = d[i-1] + 2 d[i] + d[i+1]`, the ends replicated.
 pub fn smoothed(d: &[u16], out: &mut Vec<u16>) {
@@ -65,11 +67,16 @@ pub fn smoothed(d: &[u16], out: &mut Vec<u16>) {
         return;
     }
     let at = |i: usize| u32::from(d[i]);
-    out.extend((0..n).map(|i| {
-        let l = at(i.saturating_sub(1));
-        let r = at((i + 1).min(n - 1));
-        (l + 2 * at(i) + r).min(u32::from(u16::MAX)) as u16
-    }));
+    let cap = |v: u32| v.min(u32::from(u16::MAX)) as u16;
+    // The ends replicated; the interior in one pass over windows, which vectorises.
+    out.push(cap(3 * at(0) + at(1.min(n - 1))));
+    out.extend(
+        d.windows(3)
+            .map(|w| cap(u32::from(w[0]) + 2 * u32::from(w[1]) + u32::from(w[2]))),
+    );
+    if n > 1 {
+        out.push(cap(at(n - 2) + 3 * at(n - 1)));
+    }
 }
 
 /// The sum scale for a frame whose brightest pixel is `max`.
@@ -158,6 +165,14 @@ pub fn sigma_from_differences(diffs: &mut [u16]) -> f64 {
     median / HALF_NORMAL_QUANTILE / std::f64::consts::SQRT_2
 }
 
+/// Buffers [`NoiseMap::estimate`] reuses from frame to frame.
+#[derive(Debug, Clone, Default)]
+pub struct NoiseScratch {
+    acc: Vec<u32>,
+    sum: Vec<u16>,
+    per_tile: Vec<Vec<u16>>,
+}
+
 /// The noise of a frame's summed signal, per tile.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct NoiseMap {
@@ -176,7 +191,7 @@ impl NoiseMap {
         rows_axis: bool,
         scale: SumScale,
         tile_px: usize,
-        bufs: &mut (Vec<u32>, Vec<u16>, Vec<u16>, Vec<u16>),
+        bufs: &mut NoiseScratch,
     ) {
         let (w, h) = (img.width(), img.height());
         let (len, count) = if rows_axis { (w, h) } else { (h, w) };
@@ -188,9 +203,8 @@ impl NoiseMap {
         self.sigma.resize(tx * ty, 0.0);
         // Quantisation: 1/12 level squared per pixel, times the sum of the squared weights (6 per line summed).
         let floor = (6.0 * scale.lines as f64 / 12.0).sqrt() / f64::from(scale.divisor);
-        let (acc, sum, _, diffs) = bufs;
-        let through_kernel = 6f64.sqrt();
-        let mut per_tile: Vec<Vec<u16>> = vec![Vec::new(); tx];
+        let NoiseScratch { acc, sum, per_tile } = bufs;
+        per_tile.resize_with(tx, Vec::new);
         for yt in 0..ty {
             for d in per_tile.iter_mut() {
                 d.clear();
@@ -203,10 +217,8 @@ impl NoiseMap {
                     per_tile[i / tile].push(pair[0].abs_diff(pair[1]));
                 }
             }
-            for (xt, d) in per_tile.iter_mut().enumerate() {
-                diffs.clear();
-                diffs.extend_from_slice(d);
-                let s = (through_kernel * sigma_from_differences(diffs)).max(floor);
+            for (xt, d) in per_tile.iter_mut().take(tx).enumerate() {
+                let s = (SMOOTH_NOISE_GAIN * sigma_from_differences(d)).max(floor);
                 self.sigma[yt * tx + xt] = s as f32;
             }
         }

@@ -42,22 +42,6 @@ impl Default for LineParams {
     }
 }
 
-impl LineParams {
-    /// The first parameter that is impossible, as (field, reason).
-    pub fn invalid(&self) -> Option<(&'static str, &'static str)> {
-        if !(self.extend_snr.is_finite() && self.extend_snr >= 0.0) {
-            return Some(("extend_snr", "must be a finite number of sigma, 0 or more"));
-        }
-        if !(self.seed_snr.is_finite() && self.seed_snr >= self.extend_snr) {
-            return Some(("seed_snr", "must be finite and at least extend_snr"));
-        }
-        if !(self.max_step_px.is_finite() && self.max_step_px > 0.0) {
-            return Some(("max_step_px", "must be a finite number of pixels above 0"));
-        }
-        None
-    }
-}
-
 /// One candidate for linking: scan line, position, signal-to-noise ratio.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Node {

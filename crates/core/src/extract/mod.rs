@@ -27,7 +27,9 @@ pub mod subpixel;
 use crate::error::CoreError;
 use crate::image::{ImageView, Pixel};
 use crate::rules::RuleBase;
-use evidence::{NoiseMap, SumScale, smoothed, sum_scale, summed_line};
+use evidence::{
+    NoiseMap, NoiseScratch, SMOOTH_NOISE_GAIN, SumScale, smoothed, sum_scale, summed_line,
+};
 use lines::{LineParams, Node, link_lines};
 use peaks::{Peak, dominant_peaks, line_noise};
 use serde::{Deserialize, Serialize};
@@ -341,7 +343,7 @@ pub struct Extractor {
     segments: Vec<Segment>,
     pairs: Vec<(f64, usize, usize)>,
     noise: NoiseMap,
-    noise_bufs: (Vec<u32>, Vec<u16>, Vec<u16>, Vec<u16>),
+    noise_bufs: NoiseScratch,
     sum_acc: Vec<u32>,
     sum_line: Vec<u16>,
     detect_line: Vec<u16>,
@@ -454,9 +456,8 @@ impl Extractor {
                 &mut self.sum_acc,
                 &mut self.sum_line,
             );
-            smoothed(&self.sum_line, &mut self.detect_line);
             brightest = brightest.max(self.sum_line.iter().copied().max().map_or(0, u32::from));
-            noises.push(6f64.sqrt() * line_noise(&self.sum_line, &mut self.hist));
+            noises.push(SMOOTH_NOISE_GAIN * line_noise(&self.sum_line, &mut self.hist));
         }
         noises.sort_by(f64::total_cmp);
         let noise = noises.get(noises.len() / 2).copied().unwrap_or(0.0);
@@ -476,7 +477,7 @@ impl Extractor {
         match self.params.threshold {
             Threshold::Local => to_level(self.extend_snr() * self.noise.line_min(k)).max(1),
             Threshold::Line => to_level(auto_threshold(
-                6f64.sqrt() * line_noise(line, &mut self.hist),
+                SMOOTH_NOISE_GAIN * line_noise(line, &mut self.hist),
                 full * f64::from(evidence::SMOOTH_GAIN),
             )),
             Threshold::Auto | Threshold::Fixed(_) => frame,
