@@ -104,6 +104,24 @@ pub enum BenchCommand {
         #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
         method: String,
     },
+    /// Extraction on random simulator scenes drawn over what production lines show (belt and part reflectance,
+    /// printed texture, ambient light, noise, exposure, beam, blur, distortion, 1-31 stripes, part height, bit
+    /// depth, speckle), scored as the validation README says: the distribution over scenes and the worst seeds.
+    Robustness {
+        /// Random scenes.
+        #[arg(long, default_value_t = 200)]
+        scenes: usize,
+        /// Seed of the first scene (scene i uses seed + i, so one scene is reproduced with --scenes 1 --seed X).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Sub-pixel estimator.
+        #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+        method: String,
+        /// Also write every scene's frame and true centres to DIR/extract/ (the validation set's layout, so that
+        /// `stripe3d bench validation DIR` and `stripe3d extract` read them).
+        #[arg(long, value_name = "DIR")]
+        save: Option<PathBuf>,
+    },
     /// Extraction speed on your own frames: decodes them once, extracts for a few seconds.
     Throughput {
         /// Grey images (PNG, PGM, TIFF), or folders of them.
@@ -167,6 +185,17 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
         BenchCommand::Validation { dir, method } => crate::validation_bench::bench_validation(
             dir,
             &params(method, None, AxisArg::Rows, PolicyArg::All)?,
+        ),
+        BenchCommand::Robustness {
+            scenes,
+            seed,
+            method,
+            save,
+        } => crate::robustness_bench::bench_robustness(
+            *scenes,
+            *seed,
+            &params(method, None, AxisArg::Rows, PolicyArg::All)?,
+            save.as_deref(),
         ),
         BenchCommand::Throughput {
             images,

@@ -8,6 +8,7 @@ mod fuzzy;
 mod inspect;
 mod knowledge;
 mod learning_bench;
+mod robustness_bench;
 mod scan;
 mod sensor_bench;
 mod simulate;

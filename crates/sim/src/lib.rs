@@ -13,6 +13,7 @@
 //!   each sheet's centre plane.
 //! - [`batch`]: simulated production batches (plates from a process with a seeded fault), idealised range images of
 //!   them, and scoring found defects against the truth.
+//! - [`random`]: random scenes drawn over what production lines show (the robustness bench).
 //! - [`pipeline`]: the measuring chain on simulated frames in memory (calibration from rendered plates, scans through
 //!   `stripe3d_core::scan::Scanner`), for benchmarks and ground-truth tests.
 #![deny(missing_docs)]
@@ -21,6 +22,7 @@ pub mod batch;
 pub mod evaluate;
 pub mod heightfield;
 pub mod pipeline;
+pub mod random;
 pub mod render;
 pub mod scene;
 

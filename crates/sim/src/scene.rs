@@ -2,7 +2,7 @@
 //!
 //! A scene is plain data (it derives `serde` so that `stripe3d-io` can read it from TOML). Every length is in mm,
 //! in part coordinates (belt coordinates at frame 0). Features are applied in the order: plate, steps, bosses,
-//! bumps, dents, scratches, holes, albedo and gloss patches; each later feature works on the surface the earlier ones left.
+//! bumps, dents, scratches, holes, albedo and gloss patches, printed texture; each later feature works on the surface the earlier ones left.
 
 use crate::SimError;
 use crate::heightfield::HeightField;
@@ -217,6 +217,43 @@ pub enum Feature {
         /// Specular fraction, 0 to 1.
         gloss: f64,
     },
+    /// Printed texture: the rectangle cut into square cells, each of a diffuse reflectance drawn log-uniformly
+    /// between `low` and `high` (a contrast of `high / low`) from a hash of `seed` and the cell.
+    Texture {
+        /// Corner x, mm.
+        x0_mm: f64,
+        /// Corner y, mm.
+        y0_mm: f64,
+        /// Opposite corner x, mm.
+        x1_mm: f64,
+        /// Opposite corner y, mm.
+        y1_mm: f64,
+        /// Side of a cell, mm.
+        cell_mm: f64,
+        /// Darkest reflectance, 0 to 1.
+        low: f64,
+        /// Brightest reflectance, `low` to 1.
+        high: f64,
+        /// Seed of the cells' draws.
+        #[serde(default)]
+        seed: u64,
+    },
+}
+
+/// The reflectance of texture cell `(i, j)`: log-uniform in `[low, high]` from a hash of the seed and the cell
+/// (SplitMix64's finaliser, so that neighbouring cells are independent).
+fn texture_albedo(seed: u64, i: i64, j: i64, low: f64, high: f64) -> f64 {
+    let mut z = seed
+        ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    let t = (z >> 11) as f64 / (1u64 << 53) as f64;
+    if low <= 0.0 {
+        return low + t * (high - low);
+    }
+    low * (high / low).powf(t)
 }
 
 /// The ground truth of one defect put into the scene.
@@ -636,6 +673,26 @@ impl Scene {
                     rect(x0_mm, y0_mm, x1_mm, y1_mm)?;
                     check(name("gloss"), gloss, unit(gloss), "must be 0 to 1")?;
                 }
+                Feature::Texture {
+                    x0_mm,
+                    y0_mm,
+                    x1_mm,
+                    y1_mm,
+                    cell_mm,
+                    low,
+                    high,
+                    ..
+                } => {
+                    rect(x0_mm, y0_mm, x1_mm, y1_mm)?;
+                    check(name("cell_mm"), cell_mm, cell_mm > 0.0, "must be > 0")?;
+                    check(name("low"), low, unit(low), "must be 0 to 1")?;
+                    check(
+                        name("high"),
+                        high,
+                        unit(high) && high >= low,
+                        "must be low to 1",
+                    )?;
+                }
             }
         }
         Ok(())
@@ -949,6 +1006,33 @@ impl Scene {
                             gloss[k] = value as f32;
                         } else {
                             albedo[k] = value as f32;
+                        }
+                    }
+                }
+            }
+        }
+        for f in &self.features {
+            if let Feature::Texture {
+                x0_mm,
+                y0_mm,
+                x1_mm,
+                y1_mm,
+                cell_mm,
+                low,
+                high,
+                seed,
+            } = *f
+            {
+                for j in span(y0_mm, y1_mm, y0, ny) {
+                    for i in span(x0_mm, x1_mm, x0, nx) {
+                        let k = j * nx + i;
+                        if on_part[k] {
+                            let (x, y) = node(i, j);
+                            let (ci, cj) = (
+                                ((x - x0_mm) / cell_mm).floor() as i64,
+                                ((y - y0_mm) / cell_mm).floor() as i64,
+                            );
+                            albedo[k] = texture_albedo(seed, ci, cj, low, high) as f32;
                         }
                     }
                 }

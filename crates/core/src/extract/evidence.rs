@@ -32,13 +32,14 @@ pub const DEFAULT_NOISE_TILE_PX: usize = 32;
 /// Scan lines sampled for the noise: every this many within a tile.
 pub const NOISE_LINE_STEP: usize = 4;
 
-/// How the along-line sum is held: the sum itself when its smoothed form fits 16 bits, else the rounded mean (16-bit
-/// frames whose values reach past `65535 / (4 (2r + 1))`).
+/// How the along-line sum is held: the sum itself when its smoothed form fits 16 bits, else the sum over the least
+/// divisor that makes it fit (frames whose values reach past `65535 / (4 (2r + 1))`, 5461 for three lines: deep
+/// 16-bit frames, whose noise is then still many levels of the held sum).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SumScale {
     /// Scan lines summed, `2r + 1`.
     pub lines: usize,
-    /// The divisor applied to the sum (1 or `lines`).
+    /// The divisor applied to the sum (1 when it fits).
     pub divisor: u32,
 }
 
@@ -82,10 +83,10 @@ pub fn smoothed(d: &[u16], out: &mut Vec<u16>) {
 /// The sum scale for a frame whose brightest pixel is `max`.
 pub fn sum_scale(lines: usize, max: u32) -> SumScale {
     let lines = lines.max(1);
-    let fits = u64::from(max) * lines as u64 * u64::from(SMOOTH_GAIN) <= u64::from(u16::MAX);
+    let top = u64::from(max.max(1)) * lines as u64 * u64::from(SMOOTH_GAIN);
     SumScale {
         lines,
-        divisor: if fits { 1 } else { lines as u32 },
+        divisor: top.div_ceil(u64::from(u16::MAX)).max(1) as u32,
     }
 }
 
@@ -352,8 +353,12 @@ mod tests {
     #[test]
     fn sums_that_overflow_16_bits_are_held_as_means() {
         assert_eq!(sum_scale(3, 255).divisor, 1);
-        assert_eq!(sum_scale(3, 60_000).divisor, 3);
+        // 60,000 x 3 x 4 / 65,535 = 10.99: the smoothed sum over 11 fits, and saturated pixels stay distinct.
+        assert_eq!(sum_scale(3, 60_000).divisor, 11);
+        assert_eq!(sum_scale(3, 65_535).divisor, 12);
         assert_eq!(sum_scale(3, 5_000).divisor, 1);
+        assert_eq!(sum_scale(3, 5_461).divisor, 1);
+        assert_eq!(sum_scale(3, 5_462).divisor, 2);
         let mut s = Vec::new();
         smoothed(&[0, 4, 0, 1], &mut s);
         assert_eq!(s, vec![4, 8, 5, 3]);
@@ -367,7 +372,11 @@ mod tests {
             &mut acc,
             &mut out,
         );
-        assert_eq!(out, vec![60_000, 2]);
+        // (3 x 60,000) / 11 and (1 + 2 + 3) / 11, rounded.
+        assert_eq!(out, vec![16_364, 1]);
+        let mut det = Vec::new();
+        smoothed(&[u16::MAX / 4; 3], &mut det);
+        assert!(det.iter().all(|&v| v == 65_532));
         summed_line(&img.view(), true, 0, sum_scale(3, 3), &mut acc, &mut out);
         // Clamped at the edge: rows 0, 0, 1.
         assert_eq!(out[1], 1 + 1 + 2);
