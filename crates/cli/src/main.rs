@@ -14,6 +14,10 @@ mod sensor_bench;
 mod simulate;
 mod validation_bench;
 
+#[cfg(test)]
+#[path = "../tests/support/doc_commands.rs"]
+mod doc_commands;
+
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -111,4 +115,58 @@ fn error_text(e: &anyhow::Error) -> String {
         text.push_str(&c);
     }
     text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Cli, doc_commands};
+    use clap::Parser;
+
+    /// Every `stripe3d` command in the README's and `docs/`'s shell blocks is one this binary accepts: the same
+    /// subcommands, flags and values (the files they name are not opened here; the getting-started walk runs).
+    #[test]
+    fn every_command_in_the_documents_parses() {
+        let mut count = 0;
+        for doc in doc_commands::documents() {
+            for c in doc_commands::commands_in(&doc) {
+                count += 1;
+                if let Err(e) = Cli::try_parse_from(&c.words) {
+                    panic!(
+                        "{}: `{}` is not a valid command:\n{e}",
+                        c.place,
+                        c.words.join(" ")
+                    );
+                }
+            }
+        }
+        assert!(count >= 30, "only {count} commands found in the documents");
+    }
+
+    /// The extraction itself: continuations joined, comments dropped, other programs' lines and other blocks
+    /// left out, and a mistyped flag caught.
+    #[test]
+    fn document_commands_are_read_as_a_shell_reads_them() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let page = dir.path().join("page.md");
+        std::fs::write(
+            &page,
+            "text\n```sh\ncargo build\nstripe3d kb init my-kb   # a comment\nstripe3d scan --sensor \"a b.toml\" \\\n    --calib c.toml --out o f\n```\n```\nstripe3d not-shell\n```\n",
+        )
+        .expect("write");
+        let cmds = doc_commands::commands_in(&page);
+        let words: Vec<Vec<String>> = cmds.iter().map(|c| c.words.clone()).collect();
+        assert_eq!(
+            words,
+            vec![
+                vec!["stripe3d", "kb", "init", "my-kb"],
+                vec![
+                    "stripe3d", "scan", "--sensor", "a b.toml", "--calib", "c.toml", "--out", "o",
+                    "f"
+                ],
+            ]
+        );
+        assert!(cmds[1].place.ends_with("page.md:5"), "{}", cmds[1].place);
+        assert!(Cli::try_parse_from(&words[1]).is_ok());
+        assert!(Cli::try_parse_from(["stripe3d", "scan", "--sensr", "a.toml"]).is_err());
+    }
 }

@@ -3,6 +3,11 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+// Shared with the binary's test that parses every documented command; this file runs only the walk.
+#[allow(dead_code)]
+#[path = "support/doc_commands.rs"]
+mod doc_commands;
+
 fn stripe3d(args: &[&str]) -> Output {
     // Inspections are recorded in the history: keep the tests' records out of the user's default database.
     let db = std::env::temp_dir().join(format!("stripe3d-cli-tests-{}.sqlite", std::process::id()));
@@ -411,9 +416,10 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
 #[test]
 fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     let dir = tempfile::tempdir().expect("tmp");
-    let out = dir.path().join("demo");
+    let out = dir.path().join("stripe3d-demo");
     let o = stripe3d(&["demo", "--out", out.to_str().expect("utf8")]);
     assert!(o.status.success(), "{}", stderr(&o));
+    getting_started_runs_as_written(dir.path());
     for f in [
         "calib.toml",
         "calibration/plate-10mm.png",
@@ -718,6 +724,41 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     assert_eq!(report["status"], "error");
     assert_eq!(report["verdict"], "not-inspected");
     knowledge_base_history_and_learning(&out);
+}
+
+/// `docs/getting-started.md`, every command as written, in a folder holding the demo's output `stripe3d-demo/`.
+fn getting_started_runs_as_written(folder: &Path) {
+    let page = doc_commands::repo_root().join("docs/getting-started.md");
+    let commands = doc_commands::commands_in(&page);
+    assert!(
+        commands.len() >= 10,
+        "only {} commands in {}",
+        commands.len(),
+        page.display()
+    );
+    for c in &commands {
+        let o = Command::new(env!("CARGO_BIN_EXE_stripe3d"))
+            .current_dir(folder)
+            .env("STRIPE3D_DB", folder.join("default-history.sqlite"))
+            .args(&c.words[1..])
+            .output()
+            .expect("run stripe3d");
+        assert!(
+            o.status.success(),
+            "{}: `{}` failed:\n{}",
+            c.place,
+            c.words.join(" "),
+            stderr(&o)
+        );
+    }
+    for f in [
+        "my-calib.toml",
+        "my-scan/range.json",
+        "my-inspection/report.json",
+        "my-kb-v2/kb.toml",
+    ] {
+        assert!(folder.join(f).is_file(), "the walk wrote no {f}");
+    }
 }
 
 /// The knowledge-base commands on the demo's output: history, feedback, learning, diff, design check, and their

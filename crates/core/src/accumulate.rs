@@ -1,7 +1,7 @@
 //! Triangulated profiles, and their accumulation over a scan into a point cloud and a range image.
 //!
 //! A [`Profile`] is one frame's coded stripe points in millimetres, in part coordinates (belt coordinates with the
-//! conveyor travel since frame 0 subtracted, `DESIGN.md`). [`RangeGrid::accumulate`] resamples a scan's profiles
+//! conveyor travel since frame 0 subtracted, `docs/design.md`). [`RangeGrid::accumulate`] resamples a scan's profiles
 //! onto a regular x-y grid: every point lands in its cell, and between the points of one stripe on one image row
 //! in consecutive frames (or with one frame missing between them; the same sheet sweeping the part) the surface is
 //! interpolated (by the cubic through them and their neighbours along the track) when they are close (at most

@@ -8,7 +8,7 @@
 //! the sensor geometry and the conventions every crate shares ([`sensor`]), and the fuzzy rule bases of the paper
 //! ([`rules`]).
 //!
-//! Conventions (see `DESIGN.md`): millimetres, seconds, radians; world frame z up from the belt, x along conveyor
+//! Conventions (see `docs/design.md`): millimetres, seconds, radians; world frame z up from the belt, x along conveyor
 //! travel, right-handed, origin on the belt below the camera's optical centre; the camera looks straight down with
 //! image u along +x and v along −y; pixel centres at integer coordinates.
 #![deny(missing_docs)]

@@ -1,7 +1,7 @@
 //! The sensor: a down-looking pinhole camera with radial distortion, a multi-line laser projector and the
 //! conveyor. This is the in-memory form of `sensor.toml` (the file itself is read by `stripe3d-io`).
 //!
-//! Geometry, in the world frame of `DESIGN.md`:
+//! Geometry, in the world frame of `docs/design.md`:
 //! - The camera's optical centre is at `(0, 0, height_mm)`, looking along −z. A world point `(x, y, z)` has
 //!   normalised coordinates `xn = x / (H − z)`, `yn = −y / (H − z)`; distortion `x_d = xn (1 + k1 r²)` with
 //!   `r² = xn² + yn²`; pixel `u = cx + fx x_d`, `v = cy + fy y_d` (pixel centres at integer coordinates).
