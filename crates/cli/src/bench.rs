@@ -277,7 +277,7 @@ fn throughput(
     );
     let one = frames_per_second(&frames, &params, 1, seconds)?;
     let many = frames_per_second(&frames, &params, n, seconds)?;
-    println!(
+    say!(
         "throughput: {one:.0} frames/s on 1 thread, {many:.0} frames/s on {n} threads (method {method}, {w}x{h})"
     );
     Ok(())
@@ -542,7 +542,7 @@ fn print_clean(
     let (m, all, c) = best;
     let share = |part: usize, whole: usize| 100.0 * (1.0 - part as f64 / whole.max(1) as f64);
     let met = c.detection_rate() >= 0.995 && c.false_rate() <= 0.001;
-    println!(
+    say!(
         "- {name}, away from edges (no height break, laser-shadow boundary or albedo edge within {} px; {:.1}% of the \
          truth points and {:.1}% of {}'s points lie at one): highest detection {} {:.2}% with {:.3}% false points: {}",
         stripe3d_sim::render::EDGE_REACH_PX,
@@ -569,7 +569,7 @@ fn print_clean(
             )
         })
         .collect();
-    println!(
+    say!(
         "  (away from edges, detection / false: {})",
         line.join(", ")
     );
@@ -633,18 +633,18 @@ fn accuracy(frames: usize) -> Result<()> {
     }
     bar.finish_and_clear();
     let header: Vec<&str> = CONDITIONS.iter().map(|c| c.name).collect();
-    println!("## Sub-pixel estimators against the simulator's ground truth\n");
-    println!(
+    say!("## Sub-pixel estimators against the simulator's ground truth\n");
+    say!(
         "Single stripe on a flat plate ({frames} heights, radial distortion sweeping the sub-pixel phase, shot and read"
     );
-    println!(
+    say!(
         "noise, 8-bit); the demo scene at full physics (11 stripes, speckle, blur, ghosts, shadows; {} frames).",
         frames.max(1) * 2
     );
-    println!("A truth point is found when an extracted point on its row lies within 0.5 px.\n");
-    println!("### RMS error, px (bias in brackets)\n");
-    println!("| estimator | {} |", header.join(" | "));
-    println!("|---|{}", "---|".repeat(header.len()));
+    say!("A truth point is found when an extracted point on its row lies within 0.5 px.\n");
+    say!("### RMS error, px (bias in brackets)\n");
+    say!("| estimator | {} |", header.join(" | "));
+    say!("|---|{}", "---|".repeat(header.len()));
     for (mi, m) in methods.iter().enumerate() {
         let cells: Vec<String> = scores[mi]
             .iter()
@@ -656,20 +656,20 @@ fn accuracy(frames: usize) -> Result<()> {
                 }
             })
             .collect();
-        println!("| {} | {} |", m.name(), cells.join(" | "));
+        say!("| {} | {} |", m.name(), cells.join(" | "));
     }
     let crb_cells: Vec<String> = bounds
         .iter()
         .map(|b| b.map_or("—".into(), |b| format!("{b:.4}")))
         .collect();
-    println!(
+    say!(
         "| **Cramér-Rao bound** ({} scan lines) | {} |",
         2 * along + 1,
         crb_cells.join(" | ")
     );
-    println!("\n### Detection rate / false-point rate\n");
-    println!("| estimator | {} |", header.join(" | "));
-    println!("|---|{}", "---|".repeat(header.len()));
+    say!("\n### Detection rate / false-point rate\n");
+    say!("| estimator | {} |", header.join(" | "));
+    say!("|---|{}", "---|".repeat(header.len()));
     for (mi, m) in methods.iter().enumerate() {
         let cells: Vec<String> = scores[mi]
             .iter()
@@ -681,10 +681,10 @@ fn accuracy(frames: usize) -> Result<()> {
                 )
             })
             .collect();
-        println!("| {} | {} |", m.name(), cells.join(" | "));
+        say!("| {} | {} |", m.name(), cells.join(" | "));
     }
     // Targets.
-    println!("\n### Targets\n");
+    say!("\n### Targets\n");
     for (ci, c) in CONDITIONS.iter().enumerate() {
         if let (true, Some(b)) = (c.sigma_px >= 1.0 && c.crb, bounds[ci]) {
             // Best estimator working on the lines the extraction sums: 2-D Steger smooths along the stripe over more
@@ -697,7 +697,7 @@ fn accuracy(frames: usize) -> Result<()> {
                 .min_by(|a, b| a.1.rms().total_cmp(&b.1.rms()))
                 .context("no estimator found anything")?;
             let ok = s.rms() <= 1.3 * b && s.bias().abs() <= 0.01;
-            println!(
+            say!(
                 "- {}: best {} RMS {:.4} px = {:.2}x the bound {:.4}, bias {:+.4} px: {}",
                 c.name,
                 methods[mi].name(),
@@ -716,7 +716,7 @@ fn accuracy(frames: usize) -> Result<()> {
             for (mi, m) in methods.iter().enumerate() {
                 let s = &scores[mi][ci];
                 if s.detection_rate() >= 0.995 && s.false_rate() <= 0.001 {
-                    println!(
+                    say!(
                         "- {}: {} finds {:.2}% within 0.5 px with {:.3}% false points: meets the target",
                         c.name,
                         m.name(),
@@ -732,7 +732,7 @@ fn accuracy(frames: usize) -> Result<()> {
             });
             if let Some((mi, m)) = best {
                 let s = &scores[mi][ci];
-                println!(
+                say!(
                     "- {}: highest detection {} {:.2}% with {:.3}% false points",
                     c.name,
                     m.name(),

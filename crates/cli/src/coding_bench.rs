@@ -34,7 +34,7 @@ pub fn bench_coding(
         bail!("--frames {frames}: give 1 to {MAX_FRAMES} frames");
     }
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
-    println!("calibrating the simulated sensor (plates at 0-35 mm) ...");
+    say!("calibrating the simulated sensor (plates at 0-35 mm) ...");
     let cal = calibrate_sensor(&sensor, seed.wrapping_add(10_000))
         .context("calibrating the simulated sensor")?;
     let mut scanner = scanner(&cal)?;
@@ -107,21 +107,21 @@ pub fn bench_coding(
         t
     };
     let (b, a) = (total(&before), total(&after));
-    println!(
+    say!(
         "\nscene {}: {frames} frames {:.2} mm apart (render seed {seed}), coded as `stripe3d scan` codes them; a coded \
          point is checked against the truth point of its row nearest to it within {MATCH_RADIUS_PX} px\n",
         scene.name,
         conveyor.step_mm()
     );
-    println!(
+    say!(
         "| stage | points | coded | right | wrong | off the truth | right of matched | target >= 99.9% |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---|");
+    say!("|---|---:|---:|---:|---:|---:|---:|---|");
     for (name, t) in [
         ("each frame alone", b),
         ("after temporal reconciliation", a),
     ] {
-        println!(
+        say!(
             "| {name} | {} | {} ({:.1}%) | {} | {} | {} | {:.2}% | {} |",
             t.points,
             t.coded,
@@ -137,7 +137,7 @@ pub fn bench_coding(
             }
         );
     }
-    println!(
+    say!(
         "\nreconciliation changed {changed} labels: {} points recovered ({} right, {} wrong, {} off the truth), {} \
          relabelled ({} right, {} wrong, {} off the truth), {dropped} dropped",
         recovered.coded,
@@ -150,7 +150,7 @@ pub fn bench_coding(
         relabelled.off_truth,
     );
     if verbose {
-        println!(
+        say!(
             "\nwrong indices after reconciliation, frame by frame (true stripe -> label: points, where in the image):"
         );
         for (k, f) in after.iter().enumerate() {
@@ -167,7 +167,7 @@ pub fn bench_coding(
                     )
                 })
                 .collect();
-            println!(
+            say!(
                 "  frame {k}: {} wrong of {} coded; {}",
                 f.tally.wrong,
                 f.tally.coded,

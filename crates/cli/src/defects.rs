@@ -204,14 +204,14 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         );
     }
     let sensor = Sensor::default();
-    println!("calibrating the simulated sensor (plates at 0-35 mm) ...");
+    say!("calibrating the simulated sensor (plates at 0-35 mm) ...");
     let cal = calibrate_sensor(&sensor, seed.wrapping_add(10_000))?;
     let frames = frames_for_sweep(&sensor, 2);
     let grid = crate::scan::default_grid(&sensor);
     // The golden scan: a clean plate, rendered with a seed of its own, scanned as the parts are.
     let golden_seed = seed.wrapping_add(GOLDEN_SEED_OFFSET);
     let golden_range = if golden {
-        println!("scanning the golden plate (render seed {golden_seed}) ...");
+        say!("scanning the golden plate (render seed {golden_seed}) ...");
         let opts = RenderOptions {
             seed: golden_seed,
             ..RenderOptions::default()
@@ -327,7 +327,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         .count();
     let within = |v: &[f64], lim: f64| v.iter().filter(|e| e.abs() <= lim).count();
     let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
-    println!(
+    say!(
         "\n{} defective plates ({} defects each, {} in all) and {} clean plates, {} frames each, scanned and inspected in \
          {seconds:.0} s on {} threads (curvature correction {}; reference: {})\n",
         parts,
@@ -343,26 +343,26 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
             "fitted plane".to_string()
         }
     );
-    println!("| figure | measured | target | |");
-    println!("|---|---|---|---|");
+    say!("| figure | measured | target | |");
+    say!("|---|---|---|---|");
     let recall = hit.len() as f64 / matches.len().max(1) as f64;
     let precision = hit.len() as f64 / found_on_defective.max(1) as f64;
     let kind = kind_ok as f64 / hit.len().max(1) as f64;
-    println!(
+    say!(
         "| recall | {:.2}% ({} of {}) | >= 99% | {} |",
         100.0 * recall,
         hit.len(),
         matches.len(),
         verdict(recall >= TARGET_RECALL)
     );
-    println!(
+    say!(
         "| precision | {:.2}% ({} false of {} reported) | >= 99% | {} |",
         100.0 * precision,
         false_on_defective,
         found_on_defective,
         verdict(precision >= TARGET_PRECISION)
     );
-    println!(
+    say!(
         "| kind correct | {:.2}% ({} of {}) | >= 98% | {} |",
         100.0 * kind,
         kind_ok,
@@ -375,7 +375,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         depth.iter().map(|v| v.abs()).collect::<Vec<_>>(),
     );
     let c_ok = within(&centroid, TARGET_CENTROID_MM);
-    println!(
+    say!(
         "| centroid within 0.5 mm | {:.2}% (median {:.3} mm, 95% {:.3}, max {:.3}) | all | {} |",
         pct(c_ok, hit.len()),
         percentile(&mut c, 0.5),
@@ -384,7 +384,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         verdict(c_ok == hit.len())
     );
     let a_ok = within(&area, TARGET_AREA);
-    println!(
+    say!(
         "| area within 15% | {:.2}% (median {:.1}%, 95% {:.1}%, max {:.1}%) | all | {} |",
         pct(a_ok, hit.len()),
         100.0 * percentile(&mut a, 0.5),
@@ -393,7 +393,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         verdict(a_ok == hit.len())
     );
     let d_ok = within(&depth, TARGET_DEPTH_MM);
-    println!(
+    say!(
         "| depth within 0.03 mm | {:.2}% (median {:.4} mm, 95% {:.4}, max {:.4}) | all | {} |",
         pct(d_ok, hit.len()),
         percentile(&mut d, 0.5),
@@ -401,15 +401,15 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         percentile(&mut d, 1.0),
         verdict(d_ok == hit.len())
     );
-    println!(
+    say!(
         "| false defects on clean plates | {clean_false} on {clean_rejected} of {} plates | 0 | {} |",
         clean_runs.len(),
         verdict(clean_false == 0)
     );
-    println!(
+    say!(
         "\n| kind | truth | found | kind right | centroid err median (mm) | area err median | depth err median (mm) |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    say!("|---|---:|---:|---:|---:|---:|---:|");
     for k in ["bump", "dent", "hole"] {
         let ms: Vec<&&Match> = matches.iter().filter(|m| m.truth.kind == k).collect();
         let hs: Vec<(&DefectTruth, &Defect)> = ms
@@ -428,7 +428,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
             .iter()
             .map(|(t, f)| (f.depth_mm - t.depth_mm).abs())
             .collect();
-        println!(
+        say!(
             "| {k} | {} | {} | {} | {:.3} | {:.1}% | {:.4} |",
             ms.len(),
             hs.len(),
@@ -439,7 +439,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
         );
     }
     if verbose {
-        println!("\nmisses, wrong kinds, out-of-tolerance measurements and false defects:");
+        say!("\nmisses, wrong kinds, out-of-tolerance measurements and false defects:");
         for (_, name, o) in &all {
             for m in &o.matches {
                 let t = &m.truth;
@@ -457,14 +457,18 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
                     }
                 };
                 if let Some(l) = line {
-                    println!(
+                    say!(
                         "  {name}: {} d={:.2} mm depth {:.3} mm at ({:.1}, {:.1}): {l}",
-                        t.kind, t.diameter_mm, t.depth_mm, t.x_mm, t.y_mm
+                        t.kind,
+                        t.diameter_mm,
+                        t.depth_mm,
+                        t.x_mm,
+                        t.y_mm
                     );
                 }
             }
             for f in &o.false_defects {
-                println!(
+                say!(
                     "  {name}: FALSE {} ({:.2}) at ({:.1}, {:.1}) area {:.2} mm² depth {:.3} mm; evidence {:?}",
                     f.kind.name(),
                     f.confidence,
@@ -476,7 +480,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
                 );
             }
             for w in &o.warnings {
-                println!("  {name}: warning: {w}");
+                say!("  {name}: warning: {w}");
             }
         }
     }

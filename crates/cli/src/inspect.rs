@@ -585,15 +585,15 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         ),
         None => verdict(d),
     };
-    println!(
+    say!(
         "inspected {input} in {:.0} ms: {}",
         seconds * 1000.0,
         decision.to_uppercase()
     );
     if let Some(c) = &ctx {
-        println!("  product {} with knowledge base {}", c.name, c.kb_label());
+        say!("  product {} with knowledge base {}", c.name, c.kb_label());
     }
-    println!("  {reason}");
+    say!("  {reason}");
     let designed: Vec<Option<&str>> = (0..d.defects.len())
         .map(|k| {
             assessment.as_ref().and_then(|a| {
@@ -605,7 +605,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         })
         .collect();
     for (n, x) in d.defects.iter().enumerate() {
-        println!(
+        say!(
             "  {:>2}. {:<9} at ({:7.2}, {:7.2}) mm  area {:7.2} mm²  {} {:.3} mm  volume {:7.3} mm³  confidence {:.2}{}",
             n + 1,
             x.kind.name(),
@@ -627,13 +627,16 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
     }
     if let Some(a) = &assessment {
         for line in a.trace.iter().skip(1) {
-            println!("  | {line}");
+            say!("  | {line}");
         }
     }
     for u in &d.unmeasured {
-        println!(
+        say!(
             "  not measured: {:.2} mm² at ({:.1}, {:.1}) mm: {}",
-            u.area_mm2, u.centroid_mm[0], u.centroid_mm[1], u.reason
+            u.area_mm2,
+            u.centroid_mm[0],
+            u.centroid_mm[1],
+            u.reason
         );
     }
     for w in &d.warnings {
@@ -662,14 +665,14 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             decision,
         );
         let id = h.record(&record)?;
-        println!(
+        say!(
             "recorded as inspection {id} (part {}) in {}",
             record.part_id,
             h.path().display()
         );
         history_id = Some(id);
     }
-    println!(
+    say!(
         "wrote {}: report.json, defects.png (outlined defects), deviation.png (blue below, red above the reference)",
         args.out.display()
     );

@@ -213,7 +213,7 @@ pub fn run_feedback(a: &FeedbackArgs) -> Result<()> {
         operator: a.operator.clone(),
         note: a.note.clone(),
     })?;
-    println!(
+    say!(
         "recorded feedback {id} on inspection {}: {}{}{} in {}",
         a.inspection,
         judgement.name(),
@@ -515,7 +515,7 @@ pub fn run_learn(a: &LearnArgs) -> Result<()> {
     let history = History::open(&path)?;
     let learned = learn_from_history(&ctx, &history)?;
     let t = &learned.tuning;
-    println!(
+    say!(
         "learned from {} labelled part(s) of `{}`: defect F1 on them {:.3} -> {:.3} (true {} -> {}, false {} -> {}, \
          missed {} -> {}; {} evaluations)",
         learned.parts,
@@ -531,14 +531,14 @@ pub fn run_learn(a: &LearnArgs) -> Result<()> {
         t.evaluations
     );
     if learned.changes.is_empty() {
-        println!("nothing to change: no new version written");
+        say!("nothing to change: no new version written");
         return Ok(());
     }
     for c in &learned.changes {
-        println!("  {c}");
+        say!("  {c}");
     }
     write_kb(&a.out, &learned.kb)?;
-    println!(
+    say!(
         "wrote knowledge base v{} to {} (v{} untouched); inspect with --kb {}; `stripe3d kb diff` shows the changes",
         learned.kb.manifest.version,
         a.out.display(),
@@ -570,14 +570,14 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
             };
             let (fig, findings) = check_product(&ctx.kb, &ctx.name)?;
             if *format == Format::Json {
-                println!(
+                say!(
                     "{}",
                     serde_json::to_string_pretty(
                         &json!({"product": ctx.name, "sensor": fig, "findings": findings})
                     )?
                 );
             } else {
-                println!(
+                say!(
                     "product `{}`: sensor resolves {:.3} mm across x {:.3} mm along; {:.3} mm of height per pixel, \
                      height noise {:.4} mm; view {:.1} mm across",
                     ctx.name,
@@ -588,10 +588,10 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                     fig.view_width_mm
                 );
                 if findings.is_empty() {
-                    println!("no problems anticipated");
+                    say!("no problems anticipated");
                 }
                 for f in &findings {
-                    println!("{:<8} {}: {}", f.severity.name(), f.subject, f.message);
+                    say!("{:<8} {}: {}", f.severity.name(), f.subject, f.message);
                 }
             }
             if *strict
@@ -608,10 +608,10 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
             let b = kb_arg(new).with_context(|| format!("reading {new}"))?;
             let lines = stripe3d_kb::diff::diff(&a, &b);
             if lines.is_empty() {
-                println!("no differences");
+                say!("no differences");
             }
             for l in lines {
-                println!("{l}");
+                say!("{l}");
             }
             Ok(())
         }
@@ -635,7 +635,7 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                 stripe3d_io::write_atomic(&p, f.text.as_bytes())?;
             }
             read_kb(dir)?;
-            println!(
+            say!(
                 "wrote the worked example ({} files) to {}; edit it, check it with `stripe3d kb show --kb {}`",
                 files.len(),
                 dir.display(),
@@ -648,7 +648,7 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                 Some(d) => read_kb(d)?,
                 None => stripe3d_kb::shipped()?,
             };
-            println!(
+            say!(
                 "knowledge base `{}` version {}{}: valid",
                 k.manifest.name,
                 k.manifest.version,
@@ -658,7 +658,7 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                     .unwrap_or_default()
             );
             for (n, p) in &k.products {
-                println!(
+                say!(
                     "  product {n}: {} — process {}, method {}, {} designed feature(s), {} zone(s)",
                     p.description,
                     p.process,
@@ -668,7 +668,7 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                 );
             }
             for (n, p) in &k.processes {
-                println!(
+                say!(
                     "  process {n}: {} cause(s): {}",
                     p.causes.len(),
                     p.causes
@@ -679,7 +679,7 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                 );
             }
             for (n, m) in &k.methods {
-                println!(
+                say!(
                     "  method {n}: {:?} reference, {} estimator, threshold {} mm, rules {}, {} standard(s)",
                     m.surface.reference,
                     m.scan.extraction,
@@ -689,7 +689,7 @@ pub fn run_kb(cmd: &KbCommand) -> Result<()> {
                 );
             }
             for c in &k.manifest.changes {
-                println!("  change: {c}");
+                say!("  change: {c}");
             }
             Ok(())
         }

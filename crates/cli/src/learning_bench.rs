@@ -134,9 +134,9 @@ pub fn bench_knowledge(parts: usize, held_out: usize, seed: u64, grid_mm: f64) -
     let kb = stripe3d_kb::shipped()?;
     let started = std::time::Instant::now();
     let batch = parts.clamp(4, 500) as u64;
-    println!("## Diagnosis of seeded-fault batches ({batch} parts each, grid {grid_mm} mm)\n");
-    println!("| batch | product (process) | 1st cause | 2nd cause | 3rd cause | right |");
-    println!("|---|---|---|---|---|---|");
+    say!("## Diagnosis of seeded-fault batches ({batch} parts each, grid {grid_mm} mm)\n");
+    say!("| batch | product (process) | 1st cause | 2nd cause | 3rd cause | right |");
+    say!("|---|---|---|---|---|---|");
     let batches = [
         (
             "die debris",
@@ -195,7 +195,7 @@ pub fn bench_knowledge(parts: usize, held_out: usize, seed: u64, grid_mm: f64) -
         let ok = ranked.first().is_some_and(|(c, _)| c.cause == expected);
         right += usize::from(ok);
         let process = &kb.product_context(product)?.1.name;
-        println!(
+        say!(
             "| {name} | {product} ({process}) | {} | {} | {} | {} |",
             cell(0),
             cell(1),
@@ -203,7 +203,7 @@ pub fn bench_knowledge(parts: usize, held_out: usize, seed: u64, grid_mm: f64) -
             if ok { "yes" } else { "NO" }
         );
     }
-    println!("\n{right} of 4 batches diagnosed with the seeded cause first.\n");
+    say!("\n{right} of 4 batches diagnosed with the seeded cause first.\n");
 
     // Learning.
     let product = "machined-cover";
@@ -314,32 +314,41 @@ pub fn bench_knowledge(parts: usize, held_out: usize, seed: u64, grid_mm: f64) -
     let before = held(&shipped_rules, &kb, "held-out parts, v1")?;
     let after = held(&tuned_rules, &learned.kb, "held-out parts, v2")?;
     let t = &learned.tuning;
-    println!(
+    say!(
         "## Learning from feedback: short tool marks on `{product}` ({parts} labelled parts, {held_out} held out)\n"
     );
-    println!(
+    say!(
         "Simulated operator's feedback on the training parts: {} confirmed, {} corrected kind, {} false alarms, {} \
          missed.\n",
-        judgements[0], judgements[1], judgements[2], judgements[3]
+        judgements[0],
+        judgements[1],
+        judgements[2],
+        judgements[3]
     );
-    println!("| | shipped rules (v1) | learned rules (v2) |");
-    println!("|---|---|---|");
-    println!(
+    say!("| | shipped rules (v1) | learned rules (v2) |");
+    say!("|---|---|---|");
+    say!(
         "| F1 on the labelled history (candidates re-decided) | {:.3} | {:.3} |",
         t.before.f1(),
         t.after.f1()
     );
-    println!(
+    say!(
         "| F1 on the held-out batch (inspected again) | {:.3} | {:.3} |",
-        before.0, after.0
+        before.0,
+        after.0
     );
-    println!(
+    say!(
         "| held out: right / false / missed | {} / {} / {} | {} / {} / {} |",
-        before.1, before.2, before.3, after.1, after.2, after.3
+        before.1,
+        before.2,
+        before.3,
+        after.1,
+        after.2,
+        after.3
     );
-    println!("\nWhat learning changed (v1 -> v2):");
+    say!("\nWhat learning changed (v1 -> v2):");
     for c in &learned.changes {
-        println!("- {c}");
+        say!("- {c}");
     }
     // The chipped-tool batch of the diagnosis table again, with v2.
     let ps = inspect_parts(
@@ -361,7 +370,7 @@ pub fn bench_knowledge(parts: usize, held_out: usize, seed: u64, grid_mm: f64) -
             .map(|a| a.diagnosis.clone())
             .collect::<Vec<_>>(),
     );
-    println!(
+    say!(
         "\nThe chipped-tool batch of the diagnosis table, reasoned about with v2: {}.",
         ranked
             .iter()
@@ -371,7 +380,7 @@ pub fn bench_knowledge(parts: usize, held_out: usize, seed: u64, grid_mm: f64) -
             .join(", ")
     );
     let _ = std::fs::remove_dir_all(&dir);
-    println!(
+    say!(
         "\n{:.0} s in all ({} threads).",
         started.elapsed().as_secs_f64(),
         rayon::current_num_threads()

@@ -1,5 +1,17 @@
 //! The `stripe3d` command: thin wiring of the library crates. See `stripe3d --help`.
 
+/// `println!` for the command's output, without its panic when stdout goes away: a reader that stopped early
+/// (`stripe3d history | head`) ends the command quietly with success, as the pipe's reader chose; any other failure
+/// to write (a full disk behind a redirection) ends it with a message and a non-zero exit.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout(), $($arg)*) {
+            crate::stdout_failed(e)
+        }
+    }};
+}
+
 mod bench;
 mod coding_bench;
 mod defects;
@@ -90,6 +102,15 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Ends the command after a failed write to stdout (see `say!`).
+fn stdout_failed(e: std::io::Error) -> ! {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        std::process::exit(0);
+    }
+    eprintln!("error: cannot write the output: {e}");
+    std::process::exit(1)
 }
 
 /// True when the error is a write to a pipe whose reader has gone.

@@ -111,26 +111,26 @@ pub fn bench_robustness(
     let recall: Vec<f64> = figures.iter().map(|f| f.score.recall()).collect();
     let false_rate: Vec<f64> = figures.iter().map(|f| f.score.false_rate()).collect();
     let rms: Vec<f64> = figures.iter().map(|f| f.score.rms()).collect();
-    println!(
+    say!(
         "robustness: {scenes} random scenes (seeds {seed} to {}), extraction ({}), scored as the validation README says:",
         seed.wrapping_add(scenes as u64 - 1),
         params.method.name()
     );
-    println!("| figure | median | 5 % of scenes worse than | worst |");
-    println!("|---|---:|---:|---:|");
-    println!(
+    say!("| figure | median | 5 % of scenes worse than | worst |");
+    say!("|---|---:|---:|---:|");
+    say!(
         "| recall within 0.5 px | {:.4} | {:.4} | {:.4} |",
         quantile(&recall, 0.5),
         quantile(&recall, 0.05),
         quantile(&recall, 0.0)
     );
-    println!(
+    say!(
         "| false | {:.4} | {:.4} | {:.4} |",
         quantile(&false_rate, 0.5),
         quantile(&false_rate, 0.95),
         quantile(&false_rate, 1.0)
     );
-    println!(
+    say!(
         "| RMS px | {:.3} | {:.3} | {:.3} |",
         quantile(&rms, 0.5),
         quantile(&rms, 0.95),
@@ -139,9 +139,9 @@ pub fn bench_robustness(
     let list = |title: &str, key: &dyn Fn(&SceneFigures) -> f64| {
         let mut order: Vec<&SceneFigures> = figures.iter().collect();
         order.sort_by(|a, b| key(b).total_cmp(&key(a)));
-        println!("{title}:");
+        say!("{title}:");
         for f in order.iter().take(WORST_LISTED.min(order.len())) {
-            println!(
+            say!(
                 "  seed {}: recall {:.4}, false {:.4}, RMS {:.3} px, {} true centres; {}",
                 f.seed,
                 f.score.recall(),
@@ -154,7 +154,7 @@ pub fn bench_robustness(
     };
     list("lowest recall", &|f| -f.score.recall());
     list("most false points", &|f| f.score.false_rate());
-    println!(
+    say!(
         "summary: robustness over {scenes} scenes: recall median {:.4}, 5th percentile {:.4}; false median {:.4}, \
          95th percentile {:.4}; RMS median {:.3} px",
         quantile(&recall, 0.5),

@@ -208,19 +208,15 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
         )
         .collect::<Result<_>>()?;
     let cal = calibrate(&sensor, &images, &CalibrationParams::default())?;
-    println!(
+    say!(
         "calibrated {} stripes from {} plate images at {:?} mm",
         cal.stripes.len(),
         images.len(),
         cal.heights_mm
     );
-    println!(
-        "height residuals per stripe, mm (full model: fitted plane; linear: the paper's eq. 3):"
-    );
-    println!(
-        "| stripe | heights seen (mm) | points | full RMS | full max | linear RMS | linear max |"
-    );
-    println!("|---:|---|---:|---:|---:|---:|---:|");
+    say!("height residuals per stripe, mm (full model: fitted plane; linear: the paper's eq. 3):");
+    say!("| stripe | heights seen (mm) | points | full RMS | full max | linear RMS | linear max |");
+    say!("|---:|---|---:|---:|---:|---:|---:|");
     for r in &cal.stripes {
         let seen: Vec<String> = r.heights_mm.iter().map(|h| format!("{h}")).collect();
         let partial = if r.heights_mm.len() < cal.heights_mm.len() {
@@ -228,7 +224,7 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
         } else {
             ""
         };
-        println!(
+        say!(
             "| {} | {}{} | {} | {:.4} | {:.4} | {:.4} | {:.4} |",
             r.stripe,
             seen.join(", "),
@@ -241,7 +237,7 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
         );
     }
     write_atomic(&args.out, calibration_to_toml(&cal).as_bytes())?;
-    println!("wrote {}", args.out.display());
+    say!("wrote {}", args.out.display());
     Ok(cal)
 }
 
@@ -514,7 +510,7 @@ pub fn write_scan(
         }),
     )?;
     let pct = |a: usize| 100.0 * a as f64 / s.points.max(1) as f64;
-    println!(
+    say!(
         "scanned {} frames in {:.2} s: {} stripe points, {} coded ({:.1}%), {} ambiguous ({:.1}%) and {} false ({:.1}%) \
          dropped",
         frames.len(),
@@ -528,7 +524,7 @@ pub fn write_scan(
         pct(s.noise)
     );
     if res.curvature_corrected > 0 {
-        println!(
+        say!(
             "curvature bias of the sheets corrected on {} points ({:.1}%; --no-curvature-correction to keep the \
              triangulated heights)",
             res.curvature_corrected,
@@ -536,7 +532,7 @@ pub fn write_scan(
         );
     }
     let (lo, hi) = res.range.z_range().unwrap_or((0.0, 0.0));
-    println!(
+    say!(
         "range image {}x{} cells of {}x{} mm, {} measured, heights {lo:.3} to {hi:.3} mm",
         res.range.width,
         res.range.height,
@@ -544,7 +540,7 @@ pub fn write_scan(
         res.range.spacing_mm[1],
         res.range.measured()
     );
-    println!(
+    say!(
         "wrote {}: cloud.ply ({n} points), range.tiff + range.json, range.png (16-bit, scale in range.json), range-colour.png{}",
         out.display(),
         if res.range.intensity.is_some() {

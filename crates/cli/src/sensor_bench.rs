@@ -14,7 +14,7 @@ use stripe3d_sim::{Frame, RenderOptions, Scene, Simulator};
 pub fn bench_sensor(repeats: usize) -> Result<()> {
     let sensor = Sensor::default();
     let repeats = repeats.clamp(1, 100);
-    println!("calibrating the simulated paper set-up (plates at 0-35 mm) ...");
+    say!("calibrating the simulated paper set-up (plates at 0-35 mm) ...");
     let cal = calibrate_sensor(&sensor, 77)?;
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
     let step = conveyor.speed_mm_s / conveyor.fps;
@@ -117,22 +117,24 @@ pub fn bench_sensor(repeats: usize) -> Result<()> {
     let rate_conveyor = conveyor.speed_mm_s / 10.0 * width_cm;
     let frames_per_s = frames as f64 / seconds;
     let rate_processing = scanned_cm2 / seconds;
-    println!(
+    say!(
         "\nThe paper's set-up, simulated: 648x480 camera 100 mm above the belt, 11 stripes {} mm apart, conveyor {} mm/s \
          at {} frames/s ({step} mm per frame); one depth image = {frames} frames (one stripe pitch of travel and two \
          more), one core.\n",
-        sensor.laser.pitch_mm, conveyor.speed_mm_s, conveyor.fps
+        sensor.laser.pitch_mm,
+        conveyor.speed_mm_s,
+        conveyor.fps
     );
-    println!("| figure | paper | stripe3d (measured) | how |");
-    println!("|---|---|---|---|");
-    println!(
+    say!("| figure | paper | stripe3d (measured) | how |");
+    say!("|---|---|---|---|");
+    say!(
         "| lateral resolution | 1.696 ± 0.02 mm | {step:.3} mm along travel, {:.3} mm across | travel per frame (speed / fps); one image row on the belt |",
         sensor.camera.belt_pixel_mm()
     );
-    println!(
+    say!(
         "| depth resolution | 0.22 mm | {sigma:.4} mm (noise, 1 sigma); {mm_per_px:.3} mm per pixel of stripe shift | spread of a flat 10 mm plate's range image about its mean (mean error {mean:+.4} mm); the geometry's height per pixel at the centre |"
     );
-    println!(
+    say!(
         "| depth range | 0.44 mm to 7 cm | {min_step:.3} mm to {:.1} cm (centre stripe in view), {:.1} cm (any stripe); calibrated {:.1}-{:.1} cm, coded up to {:.2} cm | smallest step 3·√2·sigma; highest height at which the stripe stays in the image; the calibration's plates and the coding range |",
         z_max / 10.0,
         z_any / 10.0,
@@ -140,13 +142,13 @@ pub fn bench_sensor(repeats: usize) -> Result<()> {
         cal.fitted_range_mm().1 / 10.0,
         hi / 10.0
     );
-    println!(
+    say!(
         "| scanned area | 87.24 ± 1.01 cm² | {scanned_cm2:.1} cm² | measured cells of one depth image of a plate covering the view |"
     );
-    println!(
+    say!(
         "| profiling rate | 4 cm²/s | {rate_conveyor:.1} cm²/s at the paper's 1 cm/s; {rate_processing:.0} cm²/s processing-limited | belt speed x width seen; area of one depth image / its processing time |"
     );
-    println!(
+    say!(
         "| time per 11-stripe depth image | <= 4 s (400 MHz PC) | {:.1} ms ({frames_per_s:.0} frames/s) | extraction (Steger), coding, temporal reconciliation, triangulation, accumulation of {frames} frames with the curvature-bias correction, median of {repeats}, one core |",
         seconds * 1000.0
     );

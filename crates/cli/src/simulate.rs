@@ -248,12 +248,10 @@ pub fn simulate(args: &SimulateArgs) -> Result<SimulationSummary> {
 /// Runs `stripe3d demo`: simulation, extraction, calibration and scanning of the demo scene.
 pub fn demo(out: &Path) -> Result<()> {
     let sim_dir = out.join("simulation");
-    println!(
+    say!(
         "stripe3d demo: rendering the demo part (80 x 60 mm plate with a step, a boss, a designed hole,"
     );
-    println!(
-        "a printed mark, a glossy patch, and a bump, a dent and a through-hole as defects) ..."
-    );
+    say!("a printed mark, a glossy patch, and a bump, a dent and a through-hole as defects) ...");
     let args = SimulateArgs {
         scene: "demo".into(),
         frames: None,
@@ -266,27 +264,27 @@ pub fn demo(out: &Path) -> Result<()> {
         no_noise: false,
     };
     let s = simulate(&args)?;
-    println!(
+    say!(
         "rendered {} frames ({:.0} frames/s on {} threads) with {} ground-truth stripe points",
         s.frames,
         s.frames as f64 / s.seconds.max(1e-9),
         rayon::current_num_threads(),
         s.truth_points
     );
-    println!("wrote {}:", sim_dir.display());
-    println!("  frames/frame_NNNNN.png   the camera frames");
-    println!(
+    say!("wrote {}:", sim_dir.display());
+    say!("  frames/frame_NNNNN.png   the camera frames");
+    say!(
         "  truth/stripes.csv        exact sub-pixel stripe centres for every row, stripe and frame"
     );
-    println!(
+    say!(
         "  truth/heightmap.tiff     the part's true height map (float32 mm; heightmap.png to look at)"
     );
-    println!("  truth/defects.json       the defects put into the part");
-    println!("  sensor.toml, scene.toml, manifest.json");
+    say!("  truth/defects.json       the defects put into the part");
+    say!("  sensor.toml, scene.toml, manifest.json");
     extract_demo(out, &sim_dir, s.frames)?;
     scan_demo(out, &sim_dir)?;
     inspect_demo(out, &sim_dir)?;
-    println!(
+    say!(
         "next: `stripe3d history --db {db}`, `stripe3d feedback ... --db {db}`, `stripe3d learn --product demo-bracket \
          --db {db} --out my-kb-v2`, `stripe3d kb check demo-bracket` (see the README)",
         db = out.join("history.sqlite").display()
@@ -305,7 +303,7 @@ fn scan_demo(out: &Path, sim_dir: &Path) -> Result<()> {
     let sensor = read_sensor(&sensor_path)?;
     let cal_dir = out.join("calibration");
     prepare_dir(&cal_dir)?;
-    println!(
+    say!(
         "rendering a flat calibration plate at {DEMO_PLATES_MM:?} mm (gauge blocks under a matte plate) ..."
     );
     let planes: Vec<String> = DEMO_PLATES_MM
@@ -357,7 +355,7 @@ fn scan_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         sum += e * e;
         n += 1;
     }
-    println!(
+    say!(
         "against the true height map: RMS height error {:.4} mm over {n} points on smooth surfaces; {wrong} points more than 0.5 mm off (a wrong stripe index)",
         (sum / n.max(1) as f64).sqrt()
     );
@@ -402,7 +400,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         )
     });
     let golden_sim = out.join("golden/simulation");
-    println!("rendering a golden part (the demo part without its defects) for reference ...");
+    say!("rendering a golden part (the demo part without its defects) for reference ...");
     let golden_toml = out.join("golden/scene.toml");
     prepare_dir(&out.join("golden"))?;
     write_atomic(&golden_toml, scene_to_toml(&golden).as_bytes())?;
@@ -419,7 +417,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
     })?;
     let golden_scan = out.join("golden/scan");
     scan_simulation(&golden_sim, &out.join("calib.toml"), &golden_scan)?;
-    println!(
+    say!(
         "inspecting the demo scan as product `demo-bracket` of the shipped knowledge base, against the golden scan ..."
     );
     // The demo's history starts empty each run: the same part inspected again would count as a recurring defect.
@@ -463,7 +461,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         None => inspection.detection.defects.clone(),
     };
     if let Some(id) = outcome.history_id {
-        println!(
+        say!(
             "judge it: stripe3d feedback {id} --db {} --confirm N | --false-alarm N | --missed X,Y --kind K | --reviewed",
             out.join("history.sqlite").display()
         );
@@ -472,7 +470,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
     for m in &outcome.matches {
         let t = &m.truth;
         match &m.found {
-            Some(f) => println!(
+            Some(f) => say!(
                 "  truth {} at ({:.1}, {:.1}) mm, {:.2} mm: found as {} {:.2} mm off, depth {:.3} mm, area {:.1} vs {:.1} mm²",
                 t.kind,
                 t.x_mm,
@@ -484,13 +482,15 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
                 f.area_mm2,
                 t.area_mm2
             ),
-            None => println!(
+            None => say!(
                 "  truth {} at ({:.1}, {:.1}) mm: MISSED",
-                t.kind, t.x_mm, t.y_mm
+                t.kind,
+                t.x_mm,
+                t.y_mm
             ),
         }
     }
-    println!(
+    say!(
         "against the truth: {} of {} defects found, {} reported that are not in the part",
         outcome.matches.iter().filter(|m| m.found.is_some()).count(),
         truth.len(),
@@ -562,7 +562,7 @@ fn extract_demo(out: &Path, sim_dir: &Path, frames: usize) -> Result<()> {
         }
     }
     write_atomic(&dir.join("points.csv"), csv.as_bytes())?;
-    println!(
+    say!(
         "extracted {} stripe points (Steger) in {:.0} ms: {:.2}% of the truth found within 0.5 px, RMS {:.3} px, {:.2}% false points",
         score.extracted,
         seconds * 1000.0,
@@ -570,7 +570,7 @@ fn extract_demo(out: &Path, sim_dir: &Path, frames: usize) -> Result<()> {
         score.rms(),
         100.0 * score.false_rate()
     );
-    println!("wrote {}", dir.join("points.csv").display());
+    say!("wrote {}", dir.join("points.csv").display());
     Ok(())
 }
 

@@ -70,14 +70,14 @@ fn median(mut v: Vec<f64>) -> f64 {
 pub fn bench_validation(dir: &Path, params: &ExtractParams) -> Result<()> {
     let figures = score_extraction(dir, params)
         .with_context(|| format!("validation set {}", dir.display()))?;
-    println!(
+    say!(
         "extraction ({}), scored as the validation README says:",
         params.method.name()
     );
-    println!("| frame | true centres | recall within 0.5 px | false | RMS px |");
-    println!("|---|---:|---:|---:|---:|");
+    say!("| frame | true centres | recall within 0.5 px | false | RMS px |");
+    say!("|---|---:|---:|---:|---:|");
     for f in &figures {
-        println!(
+        say!(
             "| {} | {} | {:.4} | {:.4} | {:.3} |",
             f.name,
             f.score.truth,
@@ -93,7 +93,7 @@ pub fn bench_validation(dir: &Path, params: &ExtractParams) -> Result<()> {
         .iter()
         .map(|f| f.score.recall())
         .fold(f64::INFINITY, f64::min);
-    println!(
+    say!(
         "summary: extraction over {} frames: median recall {recall:.4} (worst {worst:.4}), median false {false_rate:.4}, \
          median RMS {rms:.3} px",
         figures.len()

@@ -1157,3 +1157,20 @@ fn bench_coding_scores_a_scan_against_the_truth_and_refuses_bad_arguments() {
         assert!(stderr(&o).contains(says), "{all:?}: {}", stderr(&o));
     }
 }
+
+/// A reader that stops early (`stripe3d kb show | head -1`) ends the command quietly with success, never a panic.
+#[test]
+fn output_to_a_closed_pipe_ends_quietly() {
+    use std::process::Stdio;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stripe3d"))
+        .args(["kb", "show"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run stripe3d");
+    drop(child.stdout.take()); // the reader goes away before the first line
+    let o = child.wait_with_output().expect("wait");
+    let err = stderr(&o);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(o.status.success(), "{err}");
+}
