@@ -669,7 +669,7 @@ impl Extractor {
         for d in &peaks {
             // Judged on the detection signal, against the local noise of that signal.
             let snr = if noise_known {
-                let prominence = f64::from(d.value) - subpixel::background(detect, d);
+                let prominence = subpixel::prominence(detect, d);
                 prominence / self.noise.at(d.center() as f64, k).max(f64::MIN_POSITIVE)
             } else {
                 f64::INFINITY
@@ -1270,6 +1270,47 @@ mod tests {
         };
         let frame = extract(img.view(), &linked).expect("extract");
         assert_eq!(frame.points.len(), h, "{:?}", frame.points);
+    }
+
+    #[test]
+    fn the_edge_of_a_bright_noisy_surface_is_no_stripe() {
+        // A plate lit by ambient light (40 levels, noise of 8) on a dark belt (10, noise of 2), its sides at columns 60
+        // and 160 running down every row, and one stripe on the plate at 110.3. Only the stripe is a peak: at the
+        // plate's sides the light falls far on one side only.
+        let (w, h) = (220usize, 120usize);
+        let mut img = Image::<u16>::new(w, h);
+        let mut rng = 11u64;
+        for y in 0..h {
+            for x in 0..w {
+                let mut noise = 0.0;
+                for _ in 0..4 {
+                    rng = rng
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1_442_695_040_888_963_407);
+                    noise += (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                }
+                // The optics blur the sides: a logistic edge about 1.2 px wide.
+                let edge = |t: f64| 1.0 / (1.0 + (-1.4 * t).exp());
+                let plate = edge(x as f64 - 60.0) * edge(160.0 - x as f64);
+                let (base, sigma) = (10.0 + 30.0 * plate, 2.0 + 6.0 * plate);
+                let stripe = 600.0 * (-0.5 * ((x as f64 - 110.3) / 1.5).powi(2)).exp();
+                let v = base + stripe + sigma * noise * 3.0f64.sqrt();
+                img.data_mut()[y * w + x] = v.round().clamp(0.0, 4095.0) as u16;
+            }
+        }
+        let params = ExtractParams {
+            threshold: Threshold::Local,
+            ..ExtractParams::default()
+        };
+        let found = extract(img.view(), &params).expect("extract");
+        let stray: Vec<_> = found
+            .points
+            .iter()
+            .filter(|p| (p.x - 110.3).abs() > 1.5)
+            .map(|p| (p.row, p.x))
+            .collect();
+        assert!(stray.is_empty(), "points off the stripe: {stray:?}");
+        assert!(found.points.len() >= h - 2, "{} points", found.points.len());
     }
 
     #[test]

@@ -19,6 +19,13 @@ pub fn background<T: Pixel>(line: &[T], p: &Peak) -> f64 {
     at(line, p.roi_left as isize).min(at(line, p.roi_right as isize))
 }
 
+/// How far a peak stands above its surroundings on *both* sides: its height over the higher of its two bounding
+/// valleys (eq. 4's condition, a rise before and a fall after). The edge of a bright surface (a plate's side, a
+/// printed cell) falls far on one side only, and is no peak by this measure however high the step.
+pub fn prominence<T: Pixel>(line: &[T], p: &Peak) -> f64 {
+    f64::from(p.value) - at(line, p.roi_left as isize).max(at(line, p.roi_right as isize))
+}
+
 /// Spans up to this many pixels take [`centre_of_mass`]'s integer path (its sums stay below 2^53, where the
 /// floating-point sums are exact too, for 16-bit pixels on lines of up to 2^22 pixels).
 const INTEGER_COM_MAX_SPAN: usize = 1 << 14;
