@@ -101,7 +101,7 @@ pub enum BenchCommand {
         /// The set's folder (holding extract/, calib/, scans/).
         dir: PathBuf,
         /// Sub-pixel estimator.
-        #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+        #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
         method: String,
     },
     /// Extraction on random simulator scenes drawn over what production lines show (belt and part reflectance,
@@ -115,7 +115,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Sub-pixel estimator.
-        #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+        #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
         method: String,
         /// Also write every scene's frame and true centres to DIR/extract/ (the validation set's layout, so that
         /// `stripe3d bench validation DIR` and `stripe3d extract` read them).
@@ -128,7 +128,7 @@ pub enum BenchCommand {
         #[arg(required = true)]
         images: Vec<PathBuf>,
         /// Sub-pixel estimator.
-        #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+        #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
         method: String,
         /// Threads for the parallel run [default: all cores].
         #[arg(long)]

@@ -54,7 +54,7 @@ pub struct ExtractArgs {
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// Sub-pixel estimator.
-    #[arg(long, default_value = "gaussian", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
+    #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
     pub method: String,
     /// Peak prominence threshold in grey levels [default: from the frame's noise, see README].
     #[arg(long)]

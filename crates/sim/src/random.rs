@@ -19,10 +19,13 @@
 //!
 //! The exposure is set from the scene itself: a noise-free render (blur and vignetting on, no ambient light) gives
 //! each true stripe point's peak, the medians over belt points and over part points give each surface's level, and
-//! the camera's exposure is scaled so that the dimmer of the two reaches the drawn level.
+//! the camera's exposure is scaled so that the dimmer of the two reaches the drawn level. The exposure is then held
+//! where the brightest surface's ambient light stays below [`AMBIENT_HEADROOM`] of full scale: a sensor on a line
+//! is set up so that stripes rise over the ambient light, and where the background itself saturates no stripe can
+//! be measured (such a draw lowers the exposure, so its dim stripes peak below the drawn level).
 
 use crate::SimError;
-use crate::render::{Frame, RenderOptions, Simulator};
+use crate::render::{EdgeMap, Frame, RenderOptions, Simulator};
 use crate::scene::{Belt, Feature, Lighting, Plate, Scene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -57,6 +60,9 @@ pub const SPECKLE: (f64, f64) = (0.0, 0.4);
 /// Peak of the dimmer surface's stripes, levels of an 8-bit scale (log-uniform).
 pub const DIM_PEAK_LEVELS_8BIT: (f64, f64) = (8.0, 128.0);
 
+/// Largest ambient background of any surface, fraction of full scale (the rest is the stripes' headroom).
+pub const AMBIENT_HEADROOM: f64 = 0.5;
+
 /// One random scene: the sensor, the part, what to render, and the draws in words.
 #[derive(Debug, Clone)]
 pub struct RandomScene {
@@ -68,7 +74,8 @@ pub struct RandomScene {
     pub scene: Scene,
     /// Render options (noise, speckle, blur, ambient on; vignetting as drawn).
     pub opts: RenderOptions,
-    /// The drawn peak of the dimmer surface's stripes, fraction of full scale.
+    /// The peak of the dimmer surface's stripes, fraction of full scale: as drawn, or lower once
+    /// [`RandomScene::render`] holds the exposure for the ambient light.
     pub dim_peak: f64,
 }
 
@@ -232,7 +239,25 @@ impl RandomScene {
             let cam = &mut self.sensor.camera;
             cam.exposure_e = self.dim_peak * cam.full_well_e / dim;
         }
+        // Ambient light adds `ambient · albedo` (times n_z and the vignetting, both at most 1) to a surface.
+        let brightest = self.scene.plate.as_ref().map_or(0.0, |p| p.albedo);
+        let ambient = self.scene.lighting.ambient * brightest.max(self.scene.belt.albedo);
+        if self.opts.ambient && ambient > 0.0 {
+            let cam = &mut self.sensor.camera;
+            let held = AMBIENT_HEADROOM * cam.full_well_e / ambient;
+            if held < cam.exposure_e {
+                // The dim stripes now peak lower, and the description says so.
+                self.dim_peak *= held / cam.exposure_e;
+                cam.exposure_e = held;
+            }
+        }
         Ok(Simulator::new(&self.sensor, &self.scene, self.opts.clone())?.render(0, 0.0))
+    }
+
+    /// Where the frame's visible surface breaks ([`Simulator::edge_map`]: walls, laser-shadow boundaries, albedo
+    /// edges), for scoring away from them.
+    pub fn edge_map(&self) -> Result<EdgeMap, SimError> {
+        Ok(Simulator::new(&self.sensor, &self.scene, self.opts.clone())?.edge_map(0.0))
     }
 }
 
@@ -251,6 +276,48 @@ mod tests {
         assert_ne!(
             RandomScene::draw(1).describe(),
             RandomScene::draw(2).describe()
+        );
+    }
+
+    #[test]
+    fn ambient_light_leaves_the_stripes_headroom() {
+        // Seed 20: a white part (0.91) under strong ambient light (0.21), whose drawn exposure saturates the part.
+        let mut d = RandomScene::draw(20);
+        d.sensor.camera.width = 160;
+        d.sensor.camera.height = 120;
+        d.sensor.camera.fx /= 4.05;
+        d.sensor.camera.fy /= 4.05;
+        d.sensor.camera.cx = 79.5;
+        d.sensor.camera.cy = 59.5;
+        d.sensor.camera.bits = 16;
+        d.opts.noise = false;
+        d.opts.speckle = false;
+        let drawn = d.dim_peak;
+        let lit = d.render().expect("render");
+        assert!(
+            d.dim_peak < drawn,
+            "the exposure is held for the ambient light"
+        );
+        let dark = Simulator::new(
+            &d.sensor,
+            &d.scene,
+            RenderOptions {
+                ambient: false,
+                ..d.opts.clone()
+            },
+        )
+        .expect("sim")
+        .render(0, 0.0);
+        let ambient = lit
+            .image
+            .data()
+            .iter()
+            .zip(dark.image.data())
+            .map(|(&a, &b)| f64::from(a.saturating_sub(b)) / 65_535.0)
+            .fold(0.0, f64::max);
+        assert!(
+            ambient > 0.3 && ambient <= AMBIENT_HEADROOM + 1e-3,
+            "ambient {ambient}"
         );
     }
 

@@ -285,7 +285,7 @@ fn default_noise_tile() -> usize {
 impl Default for ExtractParams {
     fn default() -> Self {
         Self {
-            method: Method::Gaussian,
+            method: Method::Steger,
             threshold: Threshold::Auto,
             axis: Axis::Rows,
             policy: Policy::All,
