@@ -8,7 +8,9 @@ use std::path::PathBuf;
 use stripe3d_core::extract::{
     Axis, DEFAULT_CUT_ASYMMETRY, ExtractParams, Extraction, Extractor, Method, Policy, Threshold,
 };
-use stripe3d_io::images::{FrameData, Laser, read_frame_native_as};
+use stripe3d_io::images::{
+    FrameData, Laser, PointMark, points_picture, read_frame_native_as, write_rgb_png,
+};
 
 /// Scan line direction.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -56,7 +58,7 @@ pub struct ExtractArgs {
     /// Sub-pixel estimator.
     #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
     pub method: String,
-    /// Peak prominence threshold in grey levels [default: from the frame's noise, see README].
+    /// Peak prominence threshold in grey levels [default: from the local noise, see docs/extraction.md].
     #[arg(long)]
     pub threshold: Option<f64>,
     /// Derive the threshold from each scan line's own noise instead of the frame's.
@@ -72,7 +74,8 @@ pub struct ExtractArgs {
     #[arg(long, value_enum, default_value = "all")]
     pub policy: PolicyArg,
     /// What the sensor sees of a colour frame: auto (the most saturated colour), red, green or blue (that colour's
-    /// excess over the mean of the other two, max(0, C - (C1 + C2) / 2)), luma, one channel (r, g, b), or weights
+    /// excess over the mean of the other two, C - (C1 + C2) / 2, shifted so that the frame's darkest thousandth is
+    /// 0), luma, one channel (r, g, b), or weights
     /// WR,WG,WB (clamp(wr R + wg G + wb B)). Grey frames are read as they are.
     #[arg(long, default_value = "auto", value_parser = parse_laser)]
     pub laser: Laser,
@@ -88,6 +91,13 @@ pub struct ExtractArgs {
     /// scattered inside a translucent part).
     #[arg(long, value_name = "LIMIT|off", default_value_t = DEFAULT_CUT_ASYMMETRY, value_parser = parse_asymmetry)]
     pub cut_asymmetry: f64,
+    /// Also write a PNG of the first image as the sensor sees it (colour frames after --laser), shrunk to at most
+    /// --picture-side pixels on a side, with its points drawn on it: green, orange where marked cut.
+    #[arg(long, value_name = "FILE.png")]
+    pub picture: Option<PathBuf>,
+    /// Longest side of the --picture, pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1600, value_parser = clap::value_parser!(u32).range(16..=16384))]
+    pub picture_side: u32,
 }
 
 /// Builds extraction parameters from the command line.
@@ -175,6 +185,23 @@ pub fn extract(args: &ExtractArgs) -> Result<()> {
         )
         .collect();
     let frames: Vec<Extraction> = results.into_iter().collect::<Result<_>>()?;
+    if let (Some(picture), Some(first), Some(path)) =
+        (&args.picture, frames.first(), args.images.first())
+    {
+        let frame = read_frame_native_as(path, args.max_pixels, Some(args.laser))?;
+        let marks: Vec<PointMark> = first
+            .points
+            .iter()
+            .map(|p| PointMark {
+                line: p.row,
+                x: p.x,
+                cut: p.cut,
+            })
+            .collect();
+        let rows_axis = matches!(args.axis, AxisArg::Rows);
+        let (w, h, rgb) = points_picture(&frame, &marks, rows_axis, args.picture_side as usize);
+        write_rgb_png(picture, w, h, &rgb)?;
+    }
     let stdout = std::io::stdout();
     let mut w = std::io::BufWriter::new(stdout.lock());
     let several = frames.len() > 1;

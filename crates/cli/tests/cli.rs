@@ -402,6 +402,27 @@ fn extract_follows_its_contract_and_refuses_bad_images() {
             assert!(o.stdout.is_empty());
         }
     }
+    // A picture of what was found: a PNG at most --picture-side on a side; where it cannot be written, an error that
+    // names it and nothing on stdout.
+    let pic = dir.path().join("found.png");
+    let pic_s = pic.to_str().expect("utf8");
+    let o = stripe3d(&["extract", f0, "--picture", pic_s, "--picture-side", "324"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let png = std::fs::read(&pic).expect("picture");
+    assert!(png.starts_with(b"\x89PNG"));
+    // 648 x 480 shrunk by 2: the IHDR's width and height.
+    let (w, h) = (
+        u32::from_be_bytes(png[16..20].try_into().expect("w")),
+        u32::from_be_bytes(png[20..24].try_into().expect("h")),
+    );
+    assert_eq!((w, h), (324, 240));
+    let o = stripe3d(&["extract", f0, "--picture", "/no/such/dir/found.png"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("found.png"), "{}", stderr(&o));
+    assert!(o.stdout.is_empty());
+    let o = stripe3d(&["extract", f0, "--picture", pic_s, "--picture-side", "3"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("picture-side"), "{}", stderr(&o));
     // A frame without stripes gives the header only.
     let dark = dir.path().join("dark.pgm");
     std::fs::write(&dark, [b"P5\n8 4\n255\n".as_slice(), &[7u8; 32]].concat()).expect("write");

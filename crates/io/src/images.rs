@@ -116,6 +116,75 @@ impl FrameData {
     }
 }
 
+/// One stripe point to draw on a [`points_picture`]: its scan line, its sub-pixel position along it, and whether
+/// it is marked cut.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointMark {
+    /// Scan line (an image row, or a column when the scan lines run along columns).
+    pub line: u32,
+    /// Position along the scan line, pixels.
+    pub x: f64,
+    /// Marked cut (drawn orange instead of green).
+    pub cut: bool,
+}
+
+/// A picture of a frame as the sensor sees it, with stripe points drawn on it: the grey values over the frame's
+/// brightest, square-rooted (so that a dim stripe and the background show beside a saturated one), shrunk by an
+/// integer factor (box average) until its longer side is at most `max_side`; each point one green pixel (orange
+/// when cut). `rows_axis` false: the points' scan lines are columns. Returns width, height and RGB bytes.
+pub fn points_picture(
+    frame: &FrameData,
+    points: &[PointMark],
+    rows_axis: bool,
+    max_side: usize,
+) -> (usize, usize, Vec<u8>) {
+    let (w, h) = frame.size();
+    let value = |i: usize| -> u32 {
+        match frame {
+            FrameData::U8(img) => u32::from(img.data()[i]),
+            FrameData::U16(img) => u32::from(img.data()[i]),
+        }
+    };
+    let f = w.max(h).div_ceil(max_side.max(1)).max(1);
+    let (pw, ph) = (w.div_ceil(f).max(1), h.div_ceil(f).max(1));
+    let mut sum = vec![0u64; pw * ph];
+    let mut count = vec![0u32; pw * ph];
+    let mut top = 1u32;
+    for y in 0..h {
+        for x in 0..w {
+            let v = value(y * w + x);
+            top = top.max(v);
+            let k = (y / f) * pw + x / f;
+            sum[k] += u64::from(v);
+            count[k] += 1;
+        }
+    }
+    let mut rgb = Vec::with_capacity(pw * ph * 3);
+    for (s, c) in sum.iter().zip(&count) {
+        let mean = *s as f64 / f64::from((*c).max(1));
+        let g = (255.0 * (mean / f64::from(top)).sqrt())
+            .round()
+            .clamp(0.0, 255.0) as u8;
+        rgb.extend_from_slice(&[g, g, g]);
+    }
+    for p in points {
+        let (x, y) = if rows_axis {
+            (p.x, f64::from(p.line))
+        } else {
+            (f64::from(p.line), p.x)
+        };
+        if !(x.is_finite() && x >= -0.5 && y >= 0.0) {
+            continue;
+        }
+        let (px, py) = ((x.round().max(0.0) as usize) / f, (y as usize) / f);
+        if px < pw && py < ph {
+            let k = 3 * (py * pw + px);
+            rgb[k..k + 3].copy_from_slice(if p.cut { &[255, 140, 0] } else { &[0, 230, 0] });
+        }
+    }
+    (pw, ph, rgb)
+}
+
 /// A frame read from disk: pixels widened to 16 bits and the bit depth of the file.
 #[derive(Debug, Clone)]
 pub struct LoadedFrame {
@@ -127,22 +196,22 @@ pub struct LoadedFrame {
 
 /// What the sensor sees of a colour frame: one grey value per pixel from its red, green and blue values.
 ///
-/// For a laser of one colour, the *colour excess* `max(0, C - (C1 + C2) / 2)` of its channel `C` over the mean of
-/// the other two: white and grey light (ambient, printed texture, a white board) has equal channels and cancels,
+/// For a laser of one colour, the *colour excess* `C - (C1 + C2) / 2` of its channel `C` over the mean of the other
+/// two, less its value at the frame's darkest thousandth (`excess_frame`), clamped at 0: white and grey light (ambient, printed texture, a white board) has equal channels and cancels,
 /// while the laser, nearly monochromatic, stands out. A plain channel, a weighted sum (clamped to the channel's
 /// range) and Rec. 601 luma are there for cameras whose filters mix the laser into several channels. A grey frame is
 /// read as it is whatever is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum Laser {
-    /// Colour frames: the colour excess (red, green or blue) with the largest sum over the frame — the laser is the
-    /// most saturated light in a laser-line picture.
+    /// Colour frames: the colour excess (red, green or blue) highest over the frame's brightest thousandth of
+    /// pixels — the laser is the most saturated light in a laser-line picture ([`AUTO_TOP_SHARE`]).
     #[default]
     Auto,
-    /// `max(0, R - (G + B) / 2)`.
+    /// `R - (G + B) / 2`, shifted.
     Red,
-    /// `max(0, G - (R + B) / 2)`.
+    /// `G - (R + B) / 2`, shifted.
     Green,
-    /// `max(0, B - (R + G) / 2)`.
+    /// `B - (R + G) / 2`, shifted.
     Blue,
     /// One channel as it is: 0 red, 1 green, 2 blue.
     Channel(usize),
@@ -198,6 +267,44 @@ impl Laser {
     }
 }
 
+/// Share of a frame's pixels [`Laser::Auto`] judges a colour by: its brightest thousandth.
+pub const AUTO_TOP_SHARE: f64 = 0.001;
+
+/// The colour [`Laser::Auto`] chooses: the one whose excess is highest over the brightest [`AUTO_TOP_SHARE`] of
+/// the frame (a laser line is the most saturated light there is, on a few per cent of the pixels at most; a colour
+/// cast of the light or the board is weak and everywhere, and a sum over the frame would choose it), the sums over
+/// the frame breaking ties (a frame without colour).
+fn auto_colour(rgb: &[[u16; 3]], full: f64) -> Laser {
+    const COLOURS: [Laser; 3] = [Laser::Red, Laser::Green, Laser::Blue];
+    let mut hist = vec![[0u32; 3]; full as usize + 1];
+    let last = hist.len() - 1;
+    let mut sums = [0f64; 3];
+    for p in rgb {
+        let c = p.map(f64::from);
+        for (k, laser) in COLOURS.iter().enumerate() {
+            let v = laser.grey(c, full);
+            sums[k] += v;
+            hist[(v as usize).min(last)][k] += 1;
+        }
+    }
+    let top = ((rgb.len() as f64 * AUTO_TOP_SHARE).ceil() as u32).max(1);
+    let mut level = [0usize; 3];
+    for (k, l) in level.iter_mut().enumerate() {
+        let mut seen = 0u32;
+        for (v, h) in hist.iter().enumerate().rev() {
+            seen += h[k];
+            if seen >= top {
+                *l = v;
+                break;
+            }
+        }
+    }
+    let best = (0..3)
+        .max_by(|&a, &b| level[a].cmp(&level[b]).then(sums[a].total_cmp(&sums[b])))
+        .unwrap_or(0);
+    COLOURS[best]
+}
+
 /// The grey frame a colour image gives for `laser` (8-bit channels stay 8-bit).
 fn colour_to_grey(
     rgb: &[[u16; 3]],
@@ -208,29 +315,67 @@ fn colour_to_grey(
 ) -> Result<LoadedFrame, String> {
     let full = if bits == 8 { 255.0 } else { 65535.0 };
     let laser = match laser {
-        Laser::Auto => {
-            let mut sums = [0f64; 3];
-            for p in rgb {
-                let [r, g, b] = p.map(f64::from);
-                sums[0] += Laser::Red.grey([r, g, b], full);
-                sums[1] += Laser::Green.grey([r, g, b], full);
-                sums[2] += Laser::Blue.grey([r, g, b], full);
-            }
-            let best = (0..3)
-                .max_by(|&a, &b| sums[a].total_cmp(&sums[b]))
-                .unwrap_or(0);
-            [Laser::Red, Laser::Green, Laser::Blue][best]
-        }
+        Laser::Auto => auto_colour(rgb, full),
         other => other,
     };
-    let data: Vec<u16> = rgb
-        .iter()
-        .map(|p| laser.grey(p.map(f64::from), full).round().clamp(0.0, full) as u16)
-        .collect();
+    let (data, bits) = match laser {
+        Laser::Red | Laser::Green | Laser::Blue => excess_frame(rgb, laser, full, bits),
+        _ => (
+            rgb.iter()
+                .map(|p| laser.grey(p.map(f64::from), full).round().clamp(0.0, full) as u16)
+                .collect(),
+            bits,
+        ),
+    };
     Ok(LoadedFrame {
         image: Image::from_vec(w, h, data).map_err(|e| e.to_string())?,
         bits,
     })
+}
+
+/// Share of a frame's pixels that the colour excess puts at zero or below: its darkest thousandth.
+pub const EXCESS_FLOOR_SHARE: f64 = 0.001;
+
+/// The colour excess `C - (C1 + C2) / 2` of a frame, less its value at the darkest [`EXCESS_FLOOR_SHARE`] of the
+/// frame (`m`, at most 0), then clamped at 0: the background's excess is mostly negative (grey light has none, and
+/// the laser's colour is in no other light), and clipped at 0 it would be a frame of zeros with the odd positive
+/// speck, whose median-based noise reads 0 and whose every speck stands many sigma tall. Shifted by `-m` the
+/// background keeps its noise. 8-bit frames whose shifted excess passes 255 are held in 16 bits.
+fn excess_frame(rgb: &[[u16; 3]], laser: Laser, full: f64, bits: u8) -> (Vec<u16>, u8) {
+    let signed = |p: &[u16; 3]| -> f64 {
+        let [r, g, b] = p.map(f64::from);
+        match laser {
+            Laser::Red => r - 0.5 * (g + b),
+            Laser::Green => g - 0.5 * (r + b),
+            _ => b - 0.5 * (r + g),
+        }
+    };
+    // Histogram of the excess in half levels, offset by the full scale.
+    let span = 4 * full as usize + 1;
+    let mut hist = vec![0u32; span];
+    for p in rgb {
+        let k = ((signed(p) + full) * 2.0)
+            .round()
+            .clamp(0.0, (span - 1) as f64) as usize;
+        hist[k] += 1;
+    }
+    let floor_count = ((rgb.len() as f64 * EXCESS_FLOOR_SHARE).ceil() as u32).max(1);
+    let mut seen = 0u32;
+    let mut floor = 0.0f64;
+    for (k, h) in hist.iter().enumerate() {
+        seen += h;
+        if seen >= floor_count {
+            floor = (k as f64 / 2.0 - full).min(0.0);
+            break;
+        }
+    }
+    let top = full - floor;
+    let bits = if bits == 8 && top > 255.0 { 16 } else { bits };
+    let data = rgb
+        .iter()
+        .map(|p| (signed(p) - floor).round().clamp(0.0, 65_535.0) as u16)
+        .collect();
+    (data, bits)
 }
 
 /// Reads a grey frame keeping its bit depth (8-bit frames stay 8-bit, which extraction scans fastest); a colour
@@ -393,6 +538,103 @@ mod tests {
                 .to_string()
                 .contains("grey")
         );
+    }
+
+    #[test]
+    fn a_points_picture_is_shrunk_to_its_limit_and_shows_every_point() {
+        let img = Image::from_vec(10, 4, (0..40u16).map(|v| v * 100).collect()).expect("img");
+        let frame = FrameData::U16(img);
+        let points = [
+            PointMark {
+                line: 1,
+                x: 2.4,
+                cut: false,
+            },
+            PointMark {
+                line: 3,
+                x: 9.2,
+                cut: true,
+            },
+            PointMark {
+                line: 0,
+                x: f64::NAN,
+                cut: false,
+            },
+            PointMark {
+                line: 99,
+                x: 1.0,
+                cut: false,
+            },
+        ];
+        let (w, h, rgb) = points_picture(&frame, &points, true, 5);
+        assert_eq!((w, h, rgb.len()), (5, 2, 30));
+        // Row 1, x 2.4 -> picture (1, 0); row 3, x 9.2 -> (4, 1); the brightest pixel's box is the brightest grey.
+        assert_eq!(&rgb[3..6], &[0, 230, 0]);
+        assert_eq!(&rgb[3 * (5 + 4)..3 * (5 + 4) + 3], &[255, 140, 0]);
+        assert!(rgb[3 * 5 + 3] > rgb[0], "brighter rows are brighter");
+        // Along columns: the line is the column.
+        let (_, _, cols) = points_picture(&frame, &points[..1], false, 100);
+        assert_eq!(&cols[3 * (2 * 10 + 1)..3 * (2 * 10 + 1) + 3], &[0, 230, 0]);
+    }
+
+    /// A 200 x 100 colour frame: a greenish cast everywhere (with noise), and a red line one pixel wide at column
+    /// 50 (0.5 % of the pixels).
+    fn cast_and_line() -> Vec<[u16; 3]> {
+        let mut rng = 3u32;
+        let mut noise = || {
+            rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (rng >> 29) as u16
+        };
+        let mut rgb = Vec::new();
+        for _y in 0..100 {
+            for x in 0..200 {
+                rgb.push(if x == 50 {
+                    [250, 60, 60]
+                } else {
+                    [100 + noise(), 130 + noise(), 100 + noise()]
+                });
+            }
+        }
+        rgb
+    }
+
+    #[test]
+    fn auto_takes_the_laser_line_not_the_colour_cast() {
+        let rgb = cast_and_line();
+        // Summed over the frame the cast's green excess (about 30 a pixel) outweighs the line's red one.
+        assert_eq!(auto_colour(&rgb, 255.0), Laser::Red);
+        let f = colour_to_grey(&rgb, 200, 100, 8, Laser::Auto).expect("grey");
+        let row = &f.image.data()[..200];
+        let peak = (0..200).max_by_key(|&x| row[x]).expect("peak");
+        assert_eq!(peak, 50);
+    }
+
+    #[test]
+    fn the_colour_excess_keeps_the_noise_of_the_background() {
+        let rgb = cast_and_line();
+        let f = colour_to_grey(&rgb, 200, 100, 8, Laser::Red).expect("grey");
+        // The background's red excess is about -30: shifted, not clipped, its values still differ.
+        let mut background: Vec<u16> = f
+            .image
+            .data()
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % 200 != 50)
+            .map(|(_, &v)| v)
+            .collect();
+        background.sort_unstable();
+        assert_eq!(background[0], 0, "the darkest pixels are at 0");
+        let (lo, hi) = (
+            background[background.len() / 4],
+            background[3 * background.len() / 4],
+        );
+        assert!(hi > lo, "the background keeps its spread: {lo}..{hi}");
+        // The line stands as far over the background as its excess over the background's.
+        let line = f.image.data()[50];
+        assert!(f64::from(line) - f64::from(background[background.len() / 2]) > 180.0);
+        // A plain channel is read as it is.
+        let g = colour_to_grey(&rgb, 200, 100, 8, Laser::Channel(1)).expect("grey");
+        assert_eq!(g.image.data()[50], 60);
     }
 
     #[test]

@@ -1,13 +1,13 @@
 //! Extraction on real photographs of laser lines on flat boards (`../shared/real/`, other people's cameras and
 //! lasers, no ground truth). On a flat board each stripe is one smooth curve: the points of a board's region are
-//! grouped into stripes (linked row to row within 3 px), each stripe gets a robust quadratic x(y) (fitted, points
+//! grouped into stripes (linked row to row within 3 px of a track's prediction, across gaps), each stripe gets a robust quadratic x(y) (fitted, points
 //! more than 1 px off dropped, fitted again), and the figures are: completeness = rows of a stripe's span with a
 //! point within 1 px of its curve, false = points of the region farther than 1.5 px from every curve, residual =
 //! RMS distance of the points within 1.5 px. The number of stripes is not given: it is what the grouping finds.
 //! Skipped with a message when `../shared/real/` is absent.
 
 use std::path::PathBuf;
-use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
+use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method, Threshold};
 use stripe3d_io::images::{FrameData, Laser, read_frame_native_as};
 
 fn real_dir() -> Option<PathBuf> {
@@ -59,25 +59,33 @@ fn score(points: &[(u32, f64)], rows: (u32, u32), cols: (f64, f64)) -> Figures {
         .copied()
         .filter(|&(r, x)| r >= rows.0 && r <= rows.1 && x >= cols.0 && x <= cols.1)
         .collect();
-    // Group row to row: each point joins the track whose last point is nearest within 3 px (and at most 5 rows back).
+    // Group row to row: each point joins the track whose prediction is nearest within 3 px, a track predicting by
+    // the line through its last points (up to 20, at least 8 rows apart) across gaps of up to 100 rows (a line
+    // lost on a dark square), else by its last point across gaps of up to 5 rows.
     let mut tracks: Vec<Vec<(f64, f64)>> = Vec::new();
-    let mut last: Vec<(u32, f64)> = Vec::new();
+    let predict = |t: &Vec<(f64, f64)>, y: f64| -> Option<f64> {
+        let &(y1, x1) = t.last()?;
+        let tail = &t[t.len().saturating_sub(20)..];
+        let (y0, x0) = tail[0];
+        if y1 - y0 >= 8.0 {
+            (y - y1 <= 100.0).then(|| x1 + (x1 - x0) / (y1 - y0) * (y - y1))
+        } else {
+            (y - y1 <= 5.0).then_some(x1)
+        }
+    };
     for &(r, x) in &inside {
-        let best = last
+        let y = f64::from(r);
+        let best = tracks
             .iter()
             .enumerate()
-            .filter(|(_, l)| l.0 < r && r - l.0 <= 5 && (l.1 - x).abs() <= 3.0)
-            .min_by(|a, b| (a.1.1 - x).abs().total_cmp(&(b.1.1 - x).abs()))
+            .filter(|(_, t)| t.last().is_some_and(|l| l.0 < y))
+            .filter_map(|(i, t)| predict(t, y).map(|p| (i, (p - x).abs())))
+            .filter(|&(_, d)| d <= 3.0)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(i, _)| i);
         match best {
-            Some(i) => {
-                tracks[i].push((f64::from(r), x));
-                last[i] = (r, x);
-            }
-            None => {
-                tracks.push(vec![(f64::from(r), x)]);
-                last.push((r, x));
-            }
+            Some(i) => tracks[i].push((y, x)),
+            None => tracks.push(vec![(y, x)]),
         }
     }
     let span = f64::from(rows.1 - rows.0 + 1);
@@ -134,8 +142,10 @@ fn score(points: &[(u32, f64)], rows: (u32, u32), cols: (f64, f64)) -> Figures {
 
 fn extract(path: &std::path::Path) -> Vec<(u32, f64)> {
     let frame = read_frame_native_as(path, 64 << 20, Some(Laser::Auto)).expect("frame");
+    // As `stripe3d extract` reads a photo: the local noise's threshold.
     let mut ex = Extractor::new(ExtractParams {
         method: Method::Steger,
+        threshold: Threshold::Local,
         ..ExtractParams::default()
     })
     .expect("extractor");
@@ -147,9 +157,34 @@ fn extract(path: &std::path::Path) -> Vec<(u32, f64)> {
     out.points.iter().map(|p| (p.row, p.x)).collect()
 }
 
-/// The boards' regions (rows, columns) chosen by looking at each photo: the flat board lit by the lines, away from
-/// its edges.
-const BOARDS: [(&str, (u32, u32), (f64, f64)); 1] = [("image5.png", (230, 500), (430.0, 730.0))];
+/// The boards' regions (rows, columns, full-resolution pixels) chosen by looking at each photo
+/// (`stripe3d extract PHOTO --picture P.png`): the flat board lit by the lines, away from its edges; the ChArUco
+/// board's two planes apart, its fold (rows 540-640) left out. Then what this build measures there, with a margin:
+/// least completeness, most false points, largest residual (px). The targets (completeness >= 0.99, false <= 1 %,
+/// residual <= 0.25 px) are not met yet (docs/extraction.md).
+type Board = (&'static str, (u32, u32), (f64, f64), [f64; 3]);
+const BOARDS: [Board; 5] = [
+    (
+        "image1.png",
+        (460, 960),
+        (940.0, 1440.0),
+        [0.88, 0.12, 0.40],
+    ),
+    ("image5.png", (230, 500), (430.0, 730.0), [0.87, 0.05, 0.35]),
+    ("1Left.png", (400, 800), (760.0, 1160.0), [0.87, 0.02, 0.40]),
+    (
+        "charuco_board_laser.png",
+        (120, 540),
+        (660.0, 1120.0),
+        [0.35, 0.70, 1.10],
+    ),
+    (
+        "charuco_board_laser.png",
+        (640, 1120),
+        (660.0, 1120.0),
+        [0.60, 0.60, 1.00],
+    ),
+];
 
 #[test]
 fn flat_boards_give_one_smooth_curve_per_stripe() {
@@ -157,23 +192,17 @@ fn flat_boards_give_one_smooth_curve_per_stripe() {
         eprintln!("skipped: ../shared/real/ is not beside the checkout");
         return;
     };
-    let mut measured = Vec::new();
-    for (name, rows, cols) in BOARDS {
+    for (name, rows, cols, [completeness, false_rate, residual]) in BOARDS {
         let path = dir.join(name);
         if !path.is_file() {
             eprintln!("skipped {name}: not in {}", dir.display());
             continue;
         }
         let f = score(&extract(&path), rows, cols);
-        eprintln!("{name}: {f:?}");
-        measured.push((name, f));
-    }
-    // Held at what this build measures, with a margin (the targets, completeness >= 0.99, false <= 1 %, residual
-    // <= 0.25 px, are not met yet: docs/extraction.md).
-    for (name, f) in measured {
+        eprintln!("{name} rows {rows:?} columns {cols:?}: {f:?}");
         assert!(f.stripes >= 1, "{name}: no stripe found: {f:?}");
-        assert!(f.completeness >= 0.9, "{name}: {f:?}");
-        assert!(f.false_rate <= 0.3, "{name}: {f:?}");
-        assert!(f.residual_px <= 0.45, "{name}: {f:?}");
+        assert!(f.completeness >= completeness, "{name}: {f:?}");
+        assert!(f.false_rate <= false_rate, "{name}: {f:?}");
+        assert!(f.residual_px <= residual, "{name}: {f:?}");
     }
 }

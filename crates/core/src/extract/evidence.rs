@@ -16,20 +16,30 @@
 //! unsmoothed sum, so the estimators see the stripe's own profile.
 //!
 //! **Local noise.** The frame is cut into square tiles of [`DEFAULT_NOISE_TILE_PX`] pixels; in each, the standard
-//! deviation of the sum is estimated from the median absolute first difference along the scan lines
-//! (`sigma = 1.4826 median|D(i+1) - D(i)| / sqrt(2)`; the noise of independent pixels, so measured before the
-//! smoothing, which correlates neighbours, and carried through it by the kernel's `sqrt(1 + 4 + 1)`), interpolated within the integer bins so that a noise of one or
-//! two grey levels is measured to a tenth of a level. Stripes and printed edges make large differences on a minority
-//! of pixels; the median ignores them while they are fewer than half. Between tile centres the estimate is interpolated bilinearly. The floor is
-//! the quantisation noise of the sum, `sqrt((2r + 1) / 12)` levels.
+//! deviation of the detection signal `S` (the sum smoothed across the line) is estimated from the median absolute
+//! difference of values [`NOISE_LAG`] apart, along the scan lines and across them (`sigma = 1.4826 median|ΔS| /
+//! sqrt(2)`), interpolated within the integer bins so that a noise of one or two grey levels is measured to a tenth
+//! of a level. Values that far apart share no pixel, so the estimate holds for noise the camera correlates over
+//! neighbouring pixels as well as for independent noise. Stripes and printed edges along the lines make large
+//! differences along them, edges across the lines across them; the median ignores them while they are fewer than
+//! half, and the tile takes the lower of the two estimates. Between tile centres the estimate is interpolated
+//! bilinearly. The floor is the quantisation noise of the smoothed sum, `sqrt(6 (2r + 1) / 12)` levels.
 
 use crate::image::{ImageView, Pixel};
 
-/// Default side of a noise tile, pixels: large enough for a robust median (the 32 x 32 pixels sampled on every
-/// [`NOISE_LINE_STEP`]th scan line give 248 differences, a standard error of 7 % on the median), small enough to
+/// Default side of a noise tile, pixels: large enough for a robust median (the 32 x 32 pixels, sampled in pairs of
+/// lines every [`NOISE_LINE_STEP`] lines, give 464 differences along the lines and 256 across them; neighbouring
+/// differences share pixels, and the tiles of a frame of even noise read within about 20 % of it), small enough to
 /// follow ambient light and vignetting.
 pub const DEFAULT_NOISE_TILE_PX: usize = 32;
-/// Scan lines sampled for the noise: every this many within a tile.
+/// Lag of the differences the noise is read from, pixels along a scan line and scan lines across them: values of
+/// the detection signal this far apart share no pixel (the kernel `[1, 2, 1]` spans three pixels, the along-line sum
+/// three lines), so for independent pixels their difference has twice the signal's variance, and where a camera
+/// correlates neighbouring pixels (demosaicing, compression, denoising) the difference still sees all of the noise
+/// at the scale peaks are found at (a first difference of the raw signal reads such noise several times too low,
+/// and its chance peaks pass as stripes).
+pub const NOISE_LAG: usize = 3;
+/// Scan lines sampled for the noise: one every this many within a tile (in pairs [`NOISE_LAG`] apart).
 pub const NOISE_LINE_STEP: usize = 4;
 
 /// How the along-line sum is held: the sum itself when its smoothed form fits 16 bits, else the sum over the least
@@ -171,7 +181,10 @@ pub fn sigma_from_differences(diffs: &mut [u16]) -> f64 {
 pub struct NoiseScratch {
     acc: Vec<u32>,
     sum: Vec<u16>,
-    per_tile: Vec<Vec<u16>>,
+    detect: Vec<u16>,
+    detect_b: Vec<u16>,
+    along: Vec<Vec<u16>>,
+    across: Vec<Vec<u16>>,
 }
 
 /// The noise of a frame's summed signal, per tile.
@@ -204,23 +217,52 @@ impl NoiseMap {
         self.sigma.resize(tx * ty, 0.0);
         // Quantisation: 1/12 level squared per pixel, times the sum of the squared weights (6 per line summed).
         let floor = (6.0 * scale.lines as f64 / 12.0).sqrt() / f64::from(scale.divisor);
-        let NoiseScratch { acc, sum, per_tile } = bufs;
-        per_tile.resize_with(tx, Vec::new);
+        let NoiseScratch {
+            acc,
+            sum,
+            detect,
+            detect_b,
+            along,
+            across,
+        } = bufs;
+        along.resize_with(tx, Vec::new);
+        across.resize_with(tx, Vec::new);
         for yt in 0..ty {
-            for d in per_tile.iter_mut() {
+            for d in along.iter_mut().chain(across.iter_mut()) {
                 d.clear();
             }
             let (k0, k1) = (yt * tile, ((yt + 1) * tile).min(count));
             let step = NOISE_LINE_STEP.min((k1 - k0).max(1));
+            // Pairs of lines NOISE_LAG apart, a pair every step.
             for k in (k0 + step / 2..k1).step_by(step) {
+                let kb = (k + NOISE_LAG).min(count - 1);
                 summed_line(img, rows_axis, k, scale, acc, sum);
-                for (i, pair) in sum.windows(2).enumerate() {
-                    per_tile[i / tile].push(pair[0].abs_diff(pair[1]));
+                smoothed(sum, detect);
+                summed_line(img, rows_axis, kb, scale, acc, sum);
+                smoothed(sum, detect_b);
+                for line in [&*detect, &*detect_b] {
+                    for (i, pair) in line.windows(NOISE_LAG + 1).enumerate() {
+                        along[i / tile].push(pair[0].abs_diff(pair[NOISE_LAG]));
+                    }
+                }
+                if kb != k {
+                    for (i, (a, b)) in detect.iter().zip(detect_b.iter()).enumerate() {
+                        across[i / tile].push(a.abs_diff(*b));
+                    }
                 }
             }
-            for (xt, d) in per_tile.iter_mut().take(tx).enumerate() {
-                let s = (SMOOTH_NOISE_GAIN * sigma_from_differences(d)).max(floor);
-                self.sigma[yt * tx + xt] = s as f32;
+            for xt in 0..tx {
+                let a = sigma_from_differences(&mut along[xt]);
+                let c = sigma_from_differences(&mut across[xt]);
+                // Each kind of structure raises one: stripes and printed edges along the scan lines the first,
+                // edges across them the second. The lower is the noise.
+                let s = match (along[xt].is_empty(), across[xt].is_empty()) {
+                    (false, false) => a.min(c),
+                    (false, true) => a,
+                    (true, false) => c,
+                    (true, true) => 0.0,
+                };
+                self.sigma[yt * tx + xt] = s.max(floor) as f32;
             }
         }
         // Tiles with no sample (a frame narrower than two pixels) take the floor.

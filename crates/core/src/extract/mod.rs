@@ -1314,6 +1314,53 @@ mod tests {
     }
 
     #[test]
+    fn noise_the_camera_correlates_over_neighbouring_pixels_is_measured_whole() {
+        // Demosaicing and compression spread each pixel's noise over its neighbours: white noise averaged over 3 x 3
+        // pixels, 100 +- 6 levels, and one stripe at 60.3. A first difference reads such noise several times low,
+        // and its chance peaks then chain into lines.
+        let (w, h) = (160usize, 160usize);
+        let mut rng = 5u64;
+        let mut white = vec![0.0f64; w * h];
+        for v in white.iter_mut() {
+            rng = rng
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            *v = (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        }
+        let mut img = Image::<u16>::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let mut n = 0.0;
+                for dy in [-1isize, 0, 1] {
+                    for dx in [-1isize, 0, 1] {
+                        let (xx, yy) = (
+                            (x as isize + dx).clamp(0, w as isize - 1),
+                            (y as isize + dy).clamp(0, h as isize - 1),
+                        );
+                        n += white[yy as usize * w + xx as usize];
+                    }
+                }
+                // Uniform noise of unit variance is 12^0.5 wide; nine of them averaged have a ninth of it.
+                let noise = 6.0 * 3.0 * n * 12f64.sqrt() / 9.0;
+                let stripe = 300.0 * (-0.5 * ((x as f64 - 60.3) / 1.5).powi(2)).exp();
+                img.data_mut()[y * w + x] = (100.0 + noise + stripe).round() as u16;
+            }
+        }
+        let params = ExtractParams {
+            threshold: Threshold::Local,
+            ..ExtractParams::default()
+        };
+        let found = extract(img.view(), &params).expect("extract");
+        let stray = found
+            .points
+            .iter()
+            .filter(|p| (p.x - 60.3).abs() > 1.5)
+            .count();
+        assert!(stray <= 2, "{stray} points off the stripe");
+        assert!(found.points.len() >= h - 2, "{} points", found.points.len());
+    }
+
+    #[test]
     fn fuzzy_drops_short_noise_segments() {
         let mut img = two_stripes(120, 60, 30.3, 80.6, 0.05);
         // Two isolated specks: short segments the detector must drop.
