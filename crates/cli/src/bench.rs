@@ -95,8 +95,9 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
-    /// Extraction (and later calibration and scans) on a validation set laid out as ../shared/validation/, scored as
-    /// its README says; the last line is a summary.
+    /// Extraction, calibration and scans on a validation set laid out as ../shared/validation/, scored as its README
+    /// says (scans: gross errors, RMS, coverage against the true height map; defects matched with the true ones);
+    /// the last line is a summary.
     Validation {
         /// The set's folder (holding extract/, calib/, scans/).
         dir: PathBuf,

@@ -174,19 +174,17 @@ fn parse_plane(arg: &str) -> Result<(f64, PathBuf)> {
     Ok((h, PathBuf::from(path)))
 }
 
-/// Runs `stripe3d calibrate`; returns the calibration it wrote.
-pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
-    let sensor = read_sensor(&args.sensor)?;
-    let planes: Vec<(f64, PathBuf)> = args
-        .planes
-        .iter()
-        .map(|p| parse_plane(p))
-        .collect::<Result<_>>()?;
-    extractor(&args.method)?;
+/// Calibrates `sensor` from plate images (height mm, file), extracted with estimator `method`; writes nothing.
+pub fn calibrate_plates(
+    sensor: &Sensor,
+    planes: &[(f64, PathBuf)],
+    method: &str,
+) -> Result<Calibration> {
+    extractor(method)?;
     let images: Vec<PlaneImage> = planes
         .par_iter()
         .map_init(
-            || extractor(&args.method),
+            || extractor(method),
             |ex, (h, path)| -> Result<PlaneImage> {
                 let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
                 let (w, hgt) = frame.size();
@@ -207,11 +205,22 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
             },
         )
         .collect::<Result<_>>()?;
-    let cal = calibrate(&sensor, &images, &CalibrationParams::default())?;
+    Ok(calibrate(sensor, &images, &CalibrationParams::default())?)
+}
+
+/// Runs `stripe3d calibrate`; returns the calibration it wrote.
+pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
+    let sensor = read_sensor(&args.sensor)?;
+    let planes: Vec<(f64, PathBuf)> = args
+        .planes
+        .iter()
+        .map(|p| parse_plane(p))
+        .collect::<Result<_>>()?;
+    let cal = calibrate_plates(&sensor, &planes, &args.method)?;
     say!(
         "calibrated {} stripes from {} plate images at {:?} mm",
         cal.stripes.len(),
-        images.len(),
+        planes.len(),
         cal.heights_mm
     );
     say!("height residuals per stripe, mm (full model: fitted plane; linear: the paper's eq. 3):");

@@ -49,7 +49,7 @@ pub fn read_text(path: &Path) -> Result<String, IoError> {
 }
 
 /// The entries of a folder, sorted by path.
-pub(crate) fn read_dir(path: &Path) -> Result<Vec<PathBuf>, IoError> {
+pub fn read_dir(path: &Path) -> Result<Vec<PathBuf>, IoError> {
     let mut out = Vec::new();
     let entries = std::fs::read_dir(path).map_err(|source| IoError::Read {
         path: path.to_path_buf(),

@@ -149,7 +149,7 @@ pub fn range_from_json(json_path: &Path, text: &str) -> Result<RangeImage, IoErr
 
 /// One float32 layer of a range image (`width` x `height`, finite values and NaN), as the JSON at `json_path`
 /// describes it.
-fn read_layer(
+pub(crate) fn read_layer(
     tiff_path: &Path,
     json_path: &Path,
     width: usize,
