@@ -104,6 +104,9 @@ pub enum BenchCommand {
         /// Sub-pixel estimator.
         #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(method_names()))]
         method: String,
+        /// Scan with each frame's stripe centres (no spacetime analysis; see `stripe3d scan --help`).
+        #[arg(long)]
+        no_spacetime: bool,
     },
     /// Extraction on random simulator scenes drawn over what production lines show (belt and part reflectance,
     /// printed texture, ambient light, noise, exposure, beam, blur, distortion, 1-31 stripes, part height, bit
@@ -183,9 +186,14 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             *seed,
             *verbose,
         ),
-        BenchCommand::Validation { dir, method } => crate::validation_bench::bench_validation(
+        BenchCommand::Validation {
+            dir,
+            method,
+            no_spacetime,
+        } => crate::validation_bench::bench_validation(
             dir,
             &params(method, None, AxisArg::Rows, PolicyArg::All)?,
+            !*no_spacetime,
         ),
         BenchCommand::Robustness {
             scenes,

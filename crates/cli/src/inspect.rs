@@ -93,6 +93,9 @@ pub struct InspectArgs {
     /// When scanning frames, keep the heights as triangulated (see `stripe3d scan --help`).
     #[arg(long)]
     pub no_curvature_correction: bool,
+    /// When scanning frames, keep each frame's stripe centres (see `stripe3d scan --help`).
+    #[arg(long)]
+    pub no_spacetime: bool,
 }
 
 fn is_range_input(frames: &[PathBuf]) -> bool {
@@ -389,6 +392,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         args.grid_mm.map(|_| "--grid-mm"),
         args.no_curvature_correction
             .then_some("--no-curvature-correction"),
+        args.no_spacetime.then_some("--no-spacetime"),
     ]
     .into_iter()
     .flatten()
@@ -487,6 +491,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             coding,
             grid,
             !args.no_curvature_correction,
+            !args.no_spacetime,
         )?;
         write_scan(&args.out, &res, &frames, &travel, ModelKind::Full, range_mm)?;
         (

@@ -16,7 +16,8 @@ use stripe3d_core::calibrate::{
 use stripe3d_core::code::{CodedFrame, CodingParams, CodingStats};
 use stripe3d_core::curvature::CurvatureBias;
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
-use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected};
+use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected, refine_in_time};
+use stripe3d_core::spacetime::{Spacetime, SpacetimeStats};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
@@ -91,6 +92,11 @@ pub struct ScanArgs {
     /// (made for the `steger` estimator, from laser.sigma_mm and camera.psf_sigma_px of sensor.toml).
     #[arg(long)]
     pub no_curvature_correction: bool,
+    /// Keep each frame's stripe centres: no spacetime analysis (which, when the frame step is at most the beam's
+    /// width along the travel, places each point by the moment its surface point crosses the sheet, free of the
+    /// bias printed texture, rims and curvature give the centre of a stripe).
+    #[arg(long)]
+    pub no_spacetime: bool,
 }
 
 /// The stripe-coding options of the commands that scan frames (`stripe3d scan`, `stripe3d inspect`).
@@ -362,6 +368,9 @@ pub struct ScanResult {
     pub seconds: f64,
     /// Points whose heights were corrected for the sheets' curvature bias.
     pub curvature_corrected: usize,
+    /// The spacetime analysis the scan used (`None`: the frame step is too coarse, or it was turned off), and what
+    /// it did.
+    pub spacetime: Option<(Spacetime, SpacetimeStats)>,
 }
 
 /// Extracts, codes and triangulates frames, and accumulates them; writes nothing.
@@ -376,9 +385,13 @@ pub fn scan_frames(
     coding_params: CodingParams,
     grid_mm: [f64; 2],
     curvature_correction: bool,
+    spacetime: bool,
 ) -> Result<ScanResult> {
     let bias = curvature_correction
         .then(|| CurvatureBias::new(sensor, &cal.full, extract.method))
+        .flatten();
+    let spacetime = spacetime
+        .then(|| travel_step(travel).and_then(|step| Spacetime::for_scan(sensor, &cal.full, step)))
         .flatten();
     let (w, h) = (sensor.camera.width, sensor.camera.height);
     let scanner = Scanner::new(cal, extract, coding_params, model)?;
@@ -390,7 +403,8 @@ pub fn scan_frames(
     bar.set_message("scanning");
     let started = Instant::now();
     // Extraction and coding in parallel; reconciliation across frames and triangulation after (deterministic).
-    let results: Vec<Result<CodedFrame>> = frames
+    // The frames are kept for the spacetime analysis, which follows each point through its neighbours.
+    let results: Vec<Result<(CodedFrame, Option<FrameData>)>> = frames
         .par_iter()
         .map_init(
             || scanner.clone(),
@@ -410,13 +424,22 @@ pub fn scan_frames(
                     FrameData::U16(img) => scanner.code_into(img.view(), &mut c),
                 }
                 bar.inc(1);
-                Ok(c)
+                Ok((c, spacetime.is_some().then_some(frame)))
             },
         )
         .collect();
     bar.finish_and_clear();
-    let mut coded = results.into_iter().collect::<Result<Vec<_>>>()?;
+    let (mut coded, kept): (Vec<CodedFrame>, Vec<Option<FrameData>>) = results
+        .into_iter()
+        .collect::<Result<Vec<_>>>()?
+        .into_iter()
+        .unzip();
     let (mut profiles, stats, _) = profiles_of(&mut coded, travel, cal, model);
+    let spacetime = spacetime.map(|st| {
+        let images: Vec<FrameData> = kept.into_iter().flatten().collect();
+        let done = refine_in_time(&mut profiles, &images, travel, &cal.full, &st);
+        (st, done)
+    });
     let seconds = started.elapsed().as_secs_f64();
     if profiles.iter().all(|p| p.points.is_empty()) {
         bail!(
@@ -434,6 +457,7 @@ pub fn scan_frames(
         coding: stats,
         seconds,
         curvature_corrected,
+        spacetime,
     })
 }
 
@@ -488,6 +512,7 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         coding,
         grid,
         !args.no_curvature_correction,
+        !args.no_spacetime,
     )?;
     write_scan(&args.out, &res, &frames, &travel, model, range_mm)?;
     Ok(res)
@@ -532,6 +557,17 @@ pub fn write_scan(
         s.noise,
         pct(s.noise)
     );
+    if let Some((st, done)) = &res.spacetime {
+        say!(
+            "{} of {} points ({:.1}%) placed by their peak in time (spacetime analysis over {} frames on each side; \
+             beam sigma {:.2} mm along the travel; --no-spacetime to keep each frame's centres)",
+            done.refined,
+            done.points,
+            100.0 * done.refined as f64 / done.points.max(1) as f64,
+            st.half_window,
+            st.sigma_travel_mm
+        );
+    }
     if res.curvature_corrected > 0 {
         say!(
             "curvature bias of the sheets corrected on {} points ({:.1}%; --no-curvature-correction to keep the \

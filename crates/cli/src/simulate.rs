@@ -377,6 +377,7 @@ fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::sc
         coding: crate::scan::CodingArgs::default(),
         cut_asymmetry: stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY,
         no_curvature_correction: false,
+        no_spacetime: false,
     })
 }
 
@@ -445,6 +446,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         grid_mm: None,
         coding: crate::scan::CodingArgs::default(),
         no_curvature_correction: false,
+        no_spacetime: false,
     })?;
     let inspection = &outcome.inspection;
     let sensor = read_sensor(&sim_dir.join("sensor.toml"))?;

@@ -206,6 +206,7 @@ pub fn score_scans(
     sensor: &Sensor,
     cal: &Calibration,
     params: &ExtractParams,
+    spacetime: bool,
 ) -> Result<Vec<ScanFigures>> {
     let folder = dir.join("scans");
     let cases = scan_cases(&folder)?;
@@ -231,6 +232,7 @@ pub fn score_scans(
             coding,
             default_grid(&scan_sensor),
             true,
+            spacetime,
         )
         .with_context(|| format!("scanning {}", c.dir.display()))?;
         let map = read_height_map(&c.dir.join("heightmap.json"))?;
@@ -279,7 +281,7 @@ pub fn score_scans(
 }
 
 /// Runs `stripe3d bench validation`.
-pub fn bench_validation(dir: &Path, params: &ExtractParams) -> Result<()> {
+pub fn bench_validation(dir: &Path, params: &ExtractParams, spacetime: bool) -> Result<()> {
     let figures = score_extraction(dir, params)
         .with_context(|| format!("validation set {}", dir.display()))?;
     say!(
@@ -338,7 +340,7 @@ pub fn bench_validation(dir: &Path, params: &ExtractParams) -> Result<()> {
         say!("summary: {extraction_summary}; calibration RMS at most {full_rms:.4} mm");
         return Ok(());
     }
-    let scans = score_scans(dir, &sensor, &cal, params)?;
+    let scans = score_scans(dir, &sensor, &cal, params, spacetime)?;
     say!(
         "scans, scored as the validation README says (gross: more than 0.5 mm off; RMS on smooth parts of the part):"
     );

@@ -53,6 +53,9 @@ pub struct ProfilePoint {
     pub z_mm: f64,
     /// Peak intensity (grey levels).
     pub intensity: f32,
+    /// Whether the position comes from the point's peak in time (see [`crate::spacetime`]) rather than from the
+    /// stripe's centre in the frame: such a point carries no curvature or albedo bias and is not corrected for it.
+    pub spacetime: bool,
 }
 
 /// One frame, triangulated.
@@ -104,6 +107,7 @@ pub fn profile_into(
             y_mm: w.y,
             z_mm: w.z,
             intensity: p.intensity,
+            spacetime: false,
         });
     }
 }
@@ -849,6 +853,7 @@ mod tests {
                     y_mm: y,
                     z_mm: z,
                     intensity: 1.0,
+                    spacetime: false,
                 })
                 .collect(),
         }
@@ -1039,6 +1044,7 @@ mod tests {
                             y_mm: -0.25 * f64::from(row) + 0.4 * z,
                             z_mm: z,
                             intensity: 50.0 + f32::from(stripe) + 0.5 * k as f32,
+                            spacetime: false,
                         });
                     }
                 }

@@ -365,9 +365,10 @@ pub fn correct(
                 .iter()
                 .enumerate()
                 .filter(|(_, q)| {
-                    maps.at(q.x_mm, q.y_mm).is_some_and(|d| {
-                        d.fxx.abs() >= MIN_CURVATURE || d.fxy.abs() >= MIN_CURVATURE
-                    })
+                    !q.spacetime
+                        && maps.at(q.x_mm, q.y_mm).is_some_and(|d| {
+                            d.fxx.abs() >= MIN_CURVATURE || d.fxy.abs() >= MIN_CURVATURE
+                        })
                 })
                 .map(|(j, q)| (i, j, q.z_mm))
                 .collect::<Vec<_>>()
@@ -678,6 +679,7 @@ mod tests {
                     y_mm: y,
                     z_mm: z + e,
                     intensity: 100.0,
+                    spacetime: false,
                 });
             }
         }

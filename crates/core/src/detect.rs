@@ -1915,6 +1915,7 @@ mod tests {
                                 y_mm: y,
                                 z_mm: 10.0,
                                 intensity: 100.0,
+                                spacetime: false,
                             })
                             .collect(),
                     }

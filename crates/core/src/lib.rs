@@ -25,6 +25,7 @@ pub mod image;
 pub mod rules;
 pub mod scan;
 pub mod sensor;
+pub mod spacetime;
 pub mod triangulate;
 
 /// A seeded xorshift generator for the unit tests' random lines: reproducible, no dependency.

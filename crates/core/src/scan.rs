@@ -12,6 +12,8 @@ use crate::code::{
 use crate::curvature::{CurvatureBias, correct};
 use crate::extract::{ExtractParams, Extraction, Extractor};
 use crate::image::{ImageView, Pixel};
+use crate::spacetime::{Frame, Spacetime, SpacetimeStats};
+use crate::triangulate::FullModel;
 use rayon::prelude::*;
 
 /// The per-frame stages of a scan with their reusable buffers. One per thread; clone it to get another.
@@ -119,6 +121,24 @@ pub fn profiles_of(
         })
         .collect();
     (profiles, stats, recovered)
+}
+
+/// Places every point of a scan's profiles by its peak in time where its temporal profile is a whole peak (see
+/// [`crate::spacetime`]); `frames` and `travel` are the scan's, in order. Frames in parallel.
+pub fn refine_in_time<F: Frame>(
+    profiles: &mut [Profile],
+    frames: &[F],
+    travel: &[f64],
+    full: &FullModel,
+    spacetime: &Spacetime,
+) -> SpacetimeStats {
+    profiles
+        .par_iter_mut()
+        .map(|p| spacetime.refine(p, frames, travel, full))
+        .reduce(SpacetimeStats::default, |mut a, b| {
+            a.add(&b);
+            a
+        })
 }
 
 /// The range image of a scan's profiles (in frame order) on a grid of `spacing_mm`: samples of one stripe and row

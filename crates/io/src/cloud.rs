@@ -186,6 +186,7 @@ mod tests {
                 y_mm: -2.0,
                 z_mm: 10.25,
                 intensity: 200.0,
+                spacetime: false,
             }],
         };
         let path = dir.path().join("cloud.ply");

@@ -106,6 +106,21 @@ pub enum FrameData {
     U16(Image<u16>),
 }
 
+impl stripe3d_core::spacetime::Frame for FrameData {
+    fn width(&self) -> usize {
+        self.size().0
+    }
+    fn height(&self) -> usize {
+        self.size().1
+    }
+    fn value(&self, x: usize, y: usize) -> f32 {
+        match self {
+            FrameData::U8(img) => img.value(x, y),
+            FrameData::U16(img) => img.value(x, y),
+        }
+    }
+}
+
 impl FrameData {
     /// Width and height.
     pub fn size(&self) -> (usize, usize) {

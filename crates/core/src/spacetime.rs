@@ -1,0 +1,343 @@
+//! Spacetime analysis: a stripe point's position from the moment its surface point crosses the sheet, not from
+//! where the stripe's light is centred in one frame (B. Curless and M. Levoy, "Better optical triangulation through
+//! spacetime analysis", ICCV 1995).
+//!
+//! # Why
+//!
+//! The centre of a stripe in one frame is the centre of the light the surface sends back across the beam. Where
+//! the reflectance changes inside the beam (printed texture, a dark mark), where the beam straddles a rim (part of
+//! it on the top, the rest lower down), or where the surface curves under it, that centre is not where the sheet's
+//! centre plane meets the surface, and triangulation puts the point off the surface: on a printed part by up to a
+//! tenth of a millimetre, the size of the defects inspection looks for.
+//!
+//! # The method
+//!
+//! On a conveyor every surface point moves along x through each sheet. A point P lit by sheet `s` returns
+//! `ρ(P) G(d(t))`: its own reflectance `ρ(P)`, constant, times the beam's profile at its distance `d(t)` from the
+//! sheet's centre plane, which changes linearly with the travel `t`. Followed from frame to frame, P's brightness
+//! is therefore a Gaussian in the travel that peaks exactly when P lies on the centre plane, whatever its
+//! reflectance, its neighbours' reflectance or the surface's curvature. For a point found in frame k at pixel
+//! (u, v) with label s:
+//!
+//! 1. its surface point P is followed through frames k−W..k+W: P in frame k+j is the triangulated point moved by
+//!    the travel between the two frames, projected into the camera (its pixel moves about one column a frame), and
+//!    its brightness read there (bilinear);
+//! 2. the background (the darkest sample) is taken off, and a Gaussian fitted to the samples above
+//!    [`MIN_SHARE`] of the brightest, contiguous around it, by Guo's weighted log-parabola ("A simple algorithm for
+//!    fitting a Gaussian function", IEEE Signal Processing Magazine, 2011): `ln y = a + b t + c t²` in the travel
+//!    `t`, weighted by `y²`; its peak `t* = −b / 2c` is the travel at which P is on the centre plane;
+//! 3. P is the point of the ray through (u, v) in frame k that, moved by `t*`, lies on sheet s's calibrated plane.
+//!
+//! A point is left as the frame gave it when its temporal profile is not a whole peak: the brightest sample at the
+//! end of the window (the scan's first or last frames, or P hidden part of the time), fewer than three samples
+//! above [`MIN_SHARE`], samples only on one side of the peak, or a fit that does not open downwards.
+//!
+//! # When
+//!
+//! It needs several frames across the beam: the scan uses it when the frame step is at most the beam's standard
+//! deviation along the travel (`laser.sigma_mm` over the cosine of the sheets' tilt; 0.30-0.42 mm for the default
+//! sheets), i.e. at least 2.4 frames over the beam's full width at half maximum. The window W covers
+//! [`WINDOW_SIGMAS`] of that deviation on each side. With a coarser step (the simulator's default 0.5 mm) the frame's
+//! own centres are kept, with the curvature correction of [`crate::curvature`].
+
+use crate::accumulate::Profile;
+use crate::image::{Image, Pixel};
+use crate::sensor::Sensor;
+use crate::triangulate::FullModel;
+use nalgebra::Vector3;
+
+/// Samples used in the fit are at least this share of the brightest (after the background is taken off): below it
+/// the beam's tails are dominated by noise and the profile's shape by the sensor's blur.
+pub const MIN_SHARE: f64 = 0.2;
+/// Half width of the window followed, in standard deviations of the beam along the travel.
+pub const WINDOW_SIGMAS: f64 = 3.0;
+/// Most frames followed on each side of a point's own.
+pub const MAX_HALF_WINDOW: usize = 16;
+
+/// A frame the analysis can read: a grey value at any integer pixel.
+pub trait Frame: Sync {
+    /// Width, pixels.
+    fn width(&self) -> usize;
+    /// Height, pixels.
+    fn height(&self) -> usize;
+    /// The value at (x, y), which the caller keeps inside the frame.
+    fn value(&self, x: usize, y: usize) -> f32;
+
+    /// The value at (u, v), bilinear between the four pixels around it; `None` outside the frame.
+    fn bilinear(&self, u: f64, v: f64) -> Option<f64> {
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
+        }
+        let (x, y) = (u.floor() as usize, v.floor() as usize);
+        if x + 1 >= self.width() || y + 1 >= self.height() {
+            return None;
+        }
+        let (fx, fy) = ((u - x as f64) as f32, (v - y as f64) as f32);
+        let top = self.value(x, y) * (1.0 - fx) + self.value(x + 1, y) * fx;
+        let bottom = self.value(x, y + 1) * (1.0 - fx) + self.value(x + 1, y + 1) * fx;
+        Some(f64::from(top * (1.0 - fy) + bottom * fy))
+    }
+}
+
+impl<T: Pixel> Frame for Image<T> {
+    fn width(&self) -> usize {
+        Image::width(self)
+    }
+    fn height(&self) -> usize {
+        Image::height(self)
+    }
+    fn value(&self, x: usize, y: usize) -> f32 {
+        self.data()[y * Image::width(self) + x].to_f32()
+    }
+}
+
+/// What the analysis did with a scan's points.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SpacetimeStats {
+    /// Points looked at.
+    pub points: usize,
+    /// Points placed by their peak in time.
+    pub refined: usize,
+}
+
+impl SpacetimeStats {
+    /// Adds another frame's counts.
+    pub fn add(&mut self, other: &SpacetimeStats) {
+        self.points += other.points;
+        self.refined += other.refined;
+    }
+}
+
+/// Spacetime analysis of a scan with a given frame step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spacetime {
+    /// Frames followed on each side of a point's own.
+    pub half_window: usize,
+    /// The beam's standard deviation along the travel, mm (the narrowest sheet's).
+    pub sigma_travel_mm: f64,
+}
+
+impl Spacetime {
+    /// The analysis for `sensor`'s sheets (its nominal `laser.sigma_mm`, the calibrated planes' tilt) at a frame step
+    /// of `step_mm`; `None` when the step is too coarse for it (more than the beam's deviation along the travel).
+    pub fn for_scan(sensor: &Sensor, full: &FullModel, step_mm: f64) -> Option<Self> {
+        // The beam's deviation across the sheet, projected on the travel: sigma / |n_x| (n the plane's normal).
+        let sigma_travel_mm = full
+            .planes
+            .iter()
+            .map(|p| sensor.laser.sigma_mm / p.normal.x.abs().max(1e-6))
+            .fold(f64::INFINITY, f64::min);
+        if !(step_mm.is_finite() && step_mm > 0.0 && sigma_travel_mm.is_finite()) {
+            return None;
+        }
+        if step_mm > sigma_travel_mm {
+            return None;
+        }
+        let half_window =
+            ((WINDOW_SIGMAS * sigma_travel_mm / step_mm).ceil() as usize).clamp(2, MAX_HALF_WINDOW);
+        Some(Self {
+            half_window,
+            sigma_travel_mm,
+        })
+    }
+
+    /// Places the points of `profile` (frame `k` of the scan) by their peaks in time; `frames` are the scan's frames
+    /// in order and `travel` their travel (mm since frame 0). Points whose temporal profile is not a whole peak keep
+    /// their positions.
+    pub fn refine<F: Frame>(
+        &self,
+        profile: &mut Profile,
+        frames: &[F],
+        travel: &[f64],
+        full: &FullModel,
+    ) -> SpacetimeStats {
+        let k = profile.frame;
+        let mut stats = SpacetimeStats::default();
+        if k >= frames.len() || k >= travel.len() {
+            return stats;
+        }
+        let cam = &full.camera;
+        let lo = k.saturating_sub(self.half_window);
+        let hi = (k + self.half_window)
+            .min(frames.len() - 1)
+            .min(travel.len() - 1);
+        let mut samples: Vec<(f64, f64)> = Vec::with_capacity(hi - lo + 1);
+        for p in profile.points.iter_mut() {
+            stats.points += 1;
+            let Some(plane) = full.planes.get(usize::from(p.stripe)) else {
+                continue;
+            };
+            // The surface point in belt coordinates at frame k.
+            let at_k = Vector3::new(p.x_mm + travel[k], p.y_mm, p.z_mm);
+            samples.clear();
+            for (f, frame) in frames.iter().enumerate().take(hi + 1).skip(lo) {
+                let t = travel[f] - travel[k];
+                let moved = at_k + Vector3::new(t, 0.0, 0.0);
+                // The point and its neighbours one row up and down: they cross the sheet together on a smooth
+                // surface, so their sum peaks when the point does, whatever their reflectances.
+                let Some(value) = cam.project(&moved).and_then(|(u, v)| {
+                    Some(
+                        frame.bilinear(u, v - 1.0)?
+                            + frame.bilinear(u, v)?
+                            + frame.bilinear(u, v + 1.0)?,
+                    )
+                }) else {
+                    continue;
+                };
+                samples.push((t, value));
+            }
+            let Some(t_peak) = temporal_peak(&samples) else {
+                continue;
+            };
+            // The point of the ray through (u, v) at frame k that, moved by t_peak, lies on the plane:
+            // n·(C + λ r + t e_x) = offset.
+            let (c, r) = (cam.centre(), cam.ray_direction(p.u, f64::from(p.row)));
+            let denom = plane.normal.dot(&r);
+            if denom.abs() < 1e-9 {
+                continue;
+            }
+            let lambda = (plane.offset - plane.normal.dot(&c) - t_peak * plane.normal.x) / denom;
+            let w = c + r * lambda;
+            if !(w.x.is_finite() && w.y.is_finite() && w.z.is_finite()) {
+                continue;
+            }
+            p.x_mm = w.x - travel[k];
+            p.y_mm = w.y;
+            p.z_mm = w.z;
+            p.spacetime = true;
+            stats.refined += 1;
+        }
+        stats
+    }
+}
+
+/// The travel at which a temporal profile `(travel, brightness)` (in travel order) peaks, by Guo's weighted
+/// log-parabola over the samples above [`MIN_SHARE`] of the brightest, contiguous around it; `None` when the
+/// profile is not a whole peak (see the module's documentation).
+pub fn temporal_peak(samples: &[(f64, f64)]) -> Option<f64> {
+    if samples.len() < 3 {
+        return None;
+    }
+    let background = samples.iter().map(|s| s.1).fold(f64::INFINITY, f64::min);
+    let (imax, peak) = samples
+        .iter()
+        .enumerate()
+        .map(|(i, s)| (i, s.1 - background))
+        .fold((0, f64::NEG_INFINITY), |a, b| if b.1 > a.1 { b } else { a });
+    if peak.is_nan() || peak <= 0.0 || imax == 0 || imax + 1 == samples.len() {
+        return None;
+    }
+    let floor = MIN_SHARE * peak;
+    let mut first = imax;
+    while first > 0 && samples[first - 1].1 - background > floor {
+        first -= 1;
+    }
+    let mut last = imax;
+    while last + 1 < samples.len() && samples[last + 1].1 - background > floor {
+        last += 1;
+    }
+    // The peak must fall below the floor on both sides inside the window: otherwise it is cut off.
+    if first == 0 || last + 1 == samples.len() || first == imax || last == imax {
+        return None;
+    }
+    // Weighted least squares of ln y = a + b t + c t² with weights y², t centred on the brightest sample.
+    let t0 = samples[imax].0;
+    let mut m = [[0.0f64; 3]; 3];
+    let mut rhs = [0.0f64; 3];
+    for &(t, v) in &samples[first..=last] {
+        let y = v - background;
+        let (w, l, t) = (y * y, y.ln(), t - t0);
+        let basis = [1.0, t, t * t];
+        for a in 0..3 {
+            rhs[a] += w * basis[a] * l;
+            for b in 0..3 {
+                m[a][b] += w * basis[a] * basis[b];
+            }
+        }
+    }
+    let [_, b, c] = solve3(m, rhs)?;
+    if c.is_nan() || c >= 0.0 {
+        return None;
+    }
+    let t = -b / (2.0 * c);
+    let (t_first, t_last) = (samples[first].0 - t0, samples[last].0 - t0);
+    (t.is_finite() && t > t_first && t < t_last).then_some(t0 + t)
+}
+
+/// Solves the 3 x 3 system `m x = rhs` by Cramer's rule; `None` when it is singular.
+fn solve3(m: [[f64; 3]; 3], rhs: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |a: &[[f64; 3]; 3]| {
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    };
+    let d = det(&m);
+    let scale = m.iter().flatten().fold(0.0f64, |s, v| s.max(v.abs()));
+    if d.is_nan() || d.abs() <= 1e-12 * scale.powi(3) {
+        return None;
+    }
+    let mut out = [0.0; 3];
+    for (col, o) in out.iter_mut().enumerate() {
+        let mut a = m;
+        for row in 0..3 {
+            a[row][col] = rhs[row];
+        }
+        *o = det(&a) / d;
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn gaussian(t: f64, mu: f64, sigma: f64) -> f64 {
+        (-(t - mu) * (t - mu) / (2.0 * sigma * sigma)).exp()
+    }
+
+    #[test]
+    fn the_peak_in_time_ignores_the_reflectance_and_the_background() {
+        for &(mu, albedo, background) in &[(0.03, 1.0, 5.0), (-0.11, 0.2, 40.0), (0.07, 3.0, 0.0)] {
+            let samples: Vec<(f64, f64)> = (-8..=8)
+                .map(|j| {
+                    let t = 0.2 * f64::from(j);
+                    (t, background + 100.0 * albedo * gaussian(t, mu, 0.35))
+                })
+                .collect();
+            let t = temporal_peak(&samples).expect("a whole peak");
+            assert!((t - mu).abs() < 1e-5, "{t} for {mu}");
+        }
+    }
+
+    #[test]
+    fn a_cut_or_one_sided_profile_is_no_peak() {
+        // The peak beyond the window's end.
+        let rising: Vec<(f64, f64)> = (-8..=8)
+            .map(|j| {
+                (
+                    0.2 * f64::from(j),
+                    100.0 * gaussian(0.2 * f64::from(j), 1.5, 0.35),
+                )
+            })
+            .collect();
+        assert_eq!(temporal_peak(&rising), None);
+        // Hidden for the first half of the crossing: samples above the floor on one side only.
+        let cut: Vec<(f64, f64)> = (-8..=8)
+            .map(|j| {
+                let t = 0.2 * f64::from(j);
+                (
+                    t,
+                    if t < 0.0 {
+                        0.0
+                    } else {
+                        100.0 * gaussian(t, 0.0, 0.35)
+                    },
+                )
+            })
+            .collect();
+        assert_eq!(temporal_peak(&cut), None);
+        assert_eq!(temporal_peak(&[(0.0, 1.0), (0.2, 2.0)]), None);
+        let flat: Vec<(f64, f64)> = (0..9).map(|j| (f64::from(j), 7.0)).collect();
+        assert_eq!(temporal_peak(&flat), None);
+    }
+}
