@@ -126,6 +126,23 @@ pub enum BenchCommand {
         #[arg(long, value_name = "DIR")]
         save: Option<PathBuf>,
     },
+    /// Whole scans of random simulator scenes (each with its own frame step), calibrated, scanned and scored against
+    /// the scene's true height map as the validation set's scans are: the distribution of gross errors, RMS and
+    /// coverage over scenes, and the worst seeds.
+    Scans {
+        /// Random scenes.
+        #[arg(long, default_value_t = 50)]
+        scenes: usize,
+        /// Seed of the first scene (scene i uses seed + i; the scenes are those of `bench robustness`).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Frames per scan.
+        #[arg(long, default_value_t = 20)]
+        frames: usize,
+        /// Scan with each frame's stripe centres (no spacetime analysis).
+        #[arg(long)]
+        no_spacetime: bool,
+    },
     /// Extraction speed on your own frames: decodes them once, extracts for a few seconds.
     Throughput {
         /// Grey images (PNG, PGM, TIFF), or folders of them.
@@ -206,6 +223,12 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             &params(method, None, AxisArg::Rows, PolicyArg::All)?,
             save.as_deref(),
         ),
+        BenchCommand::Scans {
+            scenes,
+            seed,
+            frames,
+            no_spacetime,
+        } => crate::scan_bench::bench_scans(*scenes, *seed, *frames, !*no_spacetime),
         BenchCommand::Throughput {
             images,
             method,

@@ -76,6 +76,7 @@ fn scan_and_inspect(chain: &Chain<'_>, scene: &Scene, seed: u64) -> Result<PartO
         opts,
         chain.grid,
         chain.curvature_correction,
+        true,
     )
     .with_context(|| format!("scanning {}", scene.name))?;
     // The step of the conveyor `scan_scene` moves the part with.
@@ -224,6 +225,7 @@ pub fn bench_defects(b: &DefectBench<'_>) -> Result<()> {
             opts,
             grid,
             curvature_correction,
+            true,
         )
         .context("scanning the golden plate")?;
         // Cleaned and its wall spans mapped once for every plate, with the inspection's own parameters.

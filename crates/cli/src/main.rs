@@ -22,6 +22,7 @@ mod knowledge;
 mod learning_bench;
 mod robustness_bench;
 mod scan;
+mod scan_bench;
 mod sensor_bench;
 mod simulate;
 mod validation_bench;

@@ -86,7 +86,7 @@ pub fn score_scene(seed: u64, params: &ExtractParams, save: Option<&Path>) -> Re
 }
 
 /// The `q` quantile (0 to 1) of `v` by the nearest rank.
-fn quantile(v: &[f64], q: f64) -> f64 {
+pub(crate) fn quantile(v: &[f64], q: f64) -> f64 {
     let mut s: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
     if s.is_empty() {
         return f64::NAN;

@@ -1179,6 +1179,85 @@ fn bench_coding_scores_a_scan_against_the_truth_and_refuses_bad_arguments() {
     }
 }
 
+#[test]
+fn bench_scans_scores_random_scans_against_their_truth_and_refuses_bad_arguments() {
+    // Scene 2: a 3.2 mm printed plate under 20 stripes at 0.15 mm a frame (the spacetime analysis applies).
+    let o = stripe3d(&[
+        "bench", "scans", "--scenes", "1", "--seed", "2", "--frames", "8",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("1 with a frame step fine enough for the spacetime analysis"),
+        "{out}"
+    );
+    let summary = out.lines().last().expect("a summary");
+    assert!(
+        summary.starts_with("summary: scans over 1 scenes (0 not scanned)"),
+        "{summary}"
+    );
+    let row = out
+        .lines()
+        .find(|l| l.starts_with("| gross errors"))
+        .expect("the gross row");
+    let gross: f64 = row
+        .split('|')
+        .nth(2)
+        .expect("median")
+        .trim()
+        .parse()
+        .expect("a rate");
+    assert!(gross < 0.05, "{row}");
+    for (args, says) in [
+        (vec!["--scenes", "0"], "--scenes must be at least 1"),
+        (vec!["--frames", "1"], "--frames must be at least 2"),
+    ] {
+        let mut all = vec!["bench", "scans"];
+        all.extend(args);
+        let o = stripe3d(&all);
+        assert!(!o.status.success(), "{all:?}");
+        assert!(stderr(&o).contains(says), "{all:?}: {}", stderr(&o));
+    }
+}
+
+/// The validation set's scans (`../shared/validation/`, another renderer's frames), scored as its README says; skipped
+/// with a message when the set is not beside the checkout.
+#[test]
+fn bench_validation_scores_the_sets_scans_with_heights_texture_cannot_bend() {
+    let set = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/validation");
+    if !set.join("scans").is_dir() {
+        eprintln!("skipped: ../shared/validation/ is not beside the checkout");
+        return;
+    }
+    let o = stripe3d(&["bench", "validation", set.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let row = out
+        .lines()
+        .find(|l| l.starts_with("| texture_defects |"))
+        .expect("the textured plate's row");
+    // | scan | frames | points | gross | RMS mm | coverage | dropped | defects | s |
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    let rms: f64 = cells[5].parse().expect("RMS");
+    // Each frame's centres give 0.030 mm and 202 defects here: the printed pattern bends them.
+    assert!(rms <= 0.02, "{row}");
+    let defects: Vec<usize> = cells[8]
+        .split(|c: char| !c.is_ascii_digit())
+        .filter(|t| !t.is_empty())
+        .map(|t| t.parse().expect("a count"))
+        .collect();
+    // true / reported / matched (right kind)
+    assert_eq!(defects[0], 5, "{row}");
+    assert!(defects[1] <= 10 && defects[2] >= 4, "{row}");
+    assert!(
+        out.lines()
+            .last()
+            .expect("summary")
+            .contains("scans over 3"),
+        "{out}"
+    );
+}
+
 /// A reader that stops early (`stripe3d kb show | head -1`) ends the command quietly with success, never a panic.
 #[test]
 fn output_to_a_closed_pipe_ends_quietly() {

@@ -9,7 +9,9 @@ use stripe3d_core::calibrate::{Calibration, CalibrationParams, PlaneImage, calib
 use stripe3d_core::code::{CodedFrame, CodingParams};
 use stripe3d_core::curvature::CurvatureBias;
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
-use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected};
+use stripe3d_core::image::Image;
+use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected, refine_in_time};
+use stripe3d_core::spacetime::Spacetime;
 
 /// Plate heights of the simulated calibration, mm: every stripe of the paper's set-up is seen at three of them.
 pub const CALIBRATION_HEIGHTS_MM: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 30.0, 35.0];
@@ -98,10 +100,12 @@ pub fn scan_scene(
     opts: RenderOptions,
     grid_mm: [f64; 2],
 ) -> Result<SimulatedScan, SimError> {
-    scan_scene_with(sensor, cal, scene, frames, opts, grid_mm, true)
+    scan_scene_with(sensor, cal, scene, frames, opts, grid_mm, true, true)
 }
 
-/// [`scan_scene`], with the curvature-bias correction on or off.
+/// [`scan_scene`], with the curvature-bias correction on or off, and the spacetime analysis on (where the frame step
+/// allows it, as `stripe3d scan` does by default) or off.
+#[allow(clippy::too_many_arguments)]
 pub fn scan_scene_with(
     sensor: &Sensor,
     cal: &Calibration,
@@ -110,12 +114,17 @@ pub fn scan_scene_with(
     opts: RenderOptions,
     grid_mm: [f64; 2],
     curvature_correction: bool,
+    spacetime: bool,
 ) -> Result<SimulatedScan, SimError> {
     let simulator = Simulator::new(sensor, scene, opts)?;
     let mut scanner = scanner(cal)?;
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
+    let spacetime = spacetime
+        .then(|| Spacetime::for_scan(sensor, &cal.full, conveyor.step_mm()))
+        .flatten();
     let mut coded = Vec::with_capacity(frames);
     let mut travel = Vec::with_capacity(frames);
+    let mut images: Vec<Image<u16>> = Vec::new();
     for k in 0..frames {
         let t = conveyor.travel_mm(k);
         let frame = simulator.render(k, t);
@@ -123,8 +132,14 @@ pub fn scan_scene_with(
         scanner.code_into(frame.image.view(), &mut c);
         coded.push(c);
         travel.push(t);
+        if spacetime.is_some() {
+            images.push(frame.image);
+        }
     }
     let (mut profiles, _, _) = profiles_of(&mut coded, &travel, cal, scanner.model());
+    if let Some(st) = &spacetime {
+        refine_in_time(&mut profiles, &images, &travel, &cal.full, st);
+    }
     let bias = curvature_correction
         .then(|| CurvatureBias::new(sensor, &cal.full, extract_params().method))
         .flatten();

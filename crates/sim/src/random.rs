@@ -16,6 +16,7 @@
 //! | ambient light | 0-0.3 of a stripe's centre irradiance | |
 //! | speckle | contrast 0-0.4 | |
 //! | exposure | the dimmer surface's stripes peak at 8-128 levels of an 8-bit scale (log-uniform); the brighter one, up to 30 times that, saturates where it must | |
+//! | conveyor | 10 mm/s at a frame step of 0.1-0.5 mm (log-uniform): scans of 20 frames (`stripe3d bench scans`) | |
 //!
 //! The exposure is set from the scene itself: a noise-free render (blur and vignetting on, no ambient light) gives
 //! each true stripe point's peak, the medians over belt points and over part points give each surface's level, and
@@ -53,6 +54,8 @@ pub const PSF_SIGMA_PX: (f64, f64) = (0.3, 1.5);
 pub const K1: (f64, f64) = (-0.05, 0.05);
 /// Read noise range, fraction of full scale (log-uniform).
 pub const READ_NOISE: (f64, f64) = (0.001, 0.012);
+/// Conveyor travel per frame, mm (log-uniform).
+pub const FRAME_STEP_MM: (f64, f64) = (0.1, 0.5);
 /// Ambient light range.
 pub const AMBIENT: (f64, f64) = (0.0, 0.3);
 /// Speckle contrast range.
@@ -147,6 +150,13 @@ impl RandomScene {
             scene.plate = Some(plate);
         }
         let dim_peak = log_uniform(&mut rng, DIM_PEAK_LEVELS_8BIT) / 255.0;
+        // Drawn last, so that the draws before it stay those of the single-frame scenes.
+        let step = log_uniform(&mut rng, FRAME_STEP_MM);
+        let speed_mm_s = 10.0;
+        sensor.conveyor = Some(stripe3d_core::sensor::Conveyor {
+            speed_mm_s,
+            fps: speed_mm_s / step,
+        });
         let opts = RenderOptions {
             vignetting,
             seed,
@@ -200,6 +210,13 @@ impl RandomScene {
 
     /// Sets the exposure from a noise-free render (module docs) and renders the frame.
     pub fn render(&mut self) -> Result<Frame, SimError> {
+        self.expose()?;
+        Ok(Simulator::new(&self.sensor, &self.scene, self.opts.clone())?.render(0, 0.0))
+    }
+
+    /// Sets the camera's exposure from a noise-free render of frame 0 (module docs); [`RandomScene::sensor`] is then
+    /// the one to render and scan the scene with.
+    pub fn expose(&mut self) -> Result<(), SimError> {
         let mut probe = self.sensor.clone();
         // Linear and unclipped: 2^14 levels for unit radiance, far below the 16-bit ceiling.
         probe.camera.bits = 16;
@@ -251,7 +268,7 @@ impl RandomScene {
                 cam.exposure_e = held;
             }
         }
-        Ok(Simulator::new(&self.sensor, &self.scene, self.opts.clone())?.render(0, 0.0))
+        Ok(())
     }
 
     /// Where the frame's visible surface breaks ([`Simulator::edge_map`]: walls, laser-shadow boundaries, albedo
