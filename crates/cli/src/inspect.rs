@@ -304,6 +304,15 @@ pub fn report_json(
             "noise_mm": i.maps.noise_mm,
             "part_bbox_mm": d.part_bbox_mm,
         },
+        "detectable": {
+            "smoothed_noise_mm": d.detectable.noise_mm,
+            "noise_sigmas": d.detectable.sigmas,
+            "threshold_mm": d.detectable.threshold_mm,
+            "threshold_raised": d.detectable.raised,
+            "smallest_bump_mm": d.detectable.threshold_mm,
+            "smallest_dent_mm": d.detectable.threshold_mm,
+            "smallest_hole_mm": d.detectable.hole_mm,
+        },
         "range": {
             "width": range.width, "height": range.height,
             "origin_mm": range.origin_mm, "spacing_mm": range.spacing_mm,
@@ -495,7 +504,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         )?;
         write_scan(&args.out, &res, &frames, &travel, ModelKind::Full, range_mm)?;
         (
-            res.range,
+            res.scan.range,
             format!("{} frames", frames.len()),
             travel_step(&travel),
         )

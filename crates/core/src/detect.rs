@@ -174,6 +174,117 @@ pub struct DetectParams {
     /// lies anywhere up to a step short of its rim, and the first after it as far beyond: a hole's measured area
     /// is corrected by the expected excess on each side that ends on measured surface (`hole_area`).
     pub travel_step_mm: Option<f64>,
+    /// Probability that the scan's own height noise starts a region anywhere on a clean part. The seed threshold is
+    /// raised above [`DetectParams::seed_mm`] where the noise needs it (see [`Detectable`]); 0 keeps `seed_mm`
+    /// whatever the noise.
+    pub false_alarm: f64,
+}
+
+/// What a scan lets inspection see, from the scan's own height noise.
+///
+/// The noise is the robust standard deviation (1.4826 x the median absolute deviation from the median) of the
+/// smoothed deviation over the part, away from its edges: defects cover a small share of a part, so they do not move
+/// it. Over the part's independent samples (its cells over the 9 of the smoothing window), Gaussian noise of that
+/// deviation exceeds `k` standard deviations somewhere with probability [`DetectParams::false_alarm`] when
+/// `k = Φ⁻¹(1 − false_alarm / 2n)`; the seed threshold is the larger of the method's `seed_mm` and `k` times the
+/// noise, and the growth threshold keeps its ratio to it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Detectable {
+    /// Robust standard deviation of the smoothed deviation over the part, mm.
+    pub noise_mm: f64,
+    /// Standard deviations of that noise a seed must reach (0: no noise condition).
+    pub sigmas: f64,
+    /// The smoothed deviation that starts a region, mm: the smallest bump height or dent depth seen.
+    pub threshold_mm: f64,
+    /// Whether the noise raised the threshold above the method's.
+    pub raised: bool,
+    /// Smallest hole seen, mm across (from the smallest gap and, when the travel step is known, the fewest steps).
+    pub hole_mm: f64,
+}
+
+/// The standard normal quantile `Φ⁻¹(p)`, 0 < p < 1 (P. J. Acklam's rational approximation, relative error below
+/// 1.2e-9). Written out here rather than taken from a statistics crate: it is the one function inspection needs.
+pub fn normal_quantile(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.383_577_518_672_69e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
+    if p.is_nan() || p <= 0.0 {
+        return f64::NEG_INFINITY;
+    }
+    if p >= 1.0 {
+        return f64::INFINITY;
+    }
+    let tail = |q: f64| {
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    };
+    const LOW: f64 = 0.02425;
+    if p < LOW {
+        tail((-2.0 * p.ln()).sqrt())
+    } else if p > 1.0 - LOW {
+        -tail((-2.0 * (1.0 - p).ln()).sqrt())
+    } else {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    }
+}
+
+/// The [`Detectable`] of a part whose smoothed deviations (away from its edges) are `smoothed`.
+fn detectable(smoothed: &mut [f64], params: &DetectParams) -> Detectable {
+    let hole_mm = {
+        let gap = (4.0 * params.min_gap_mm2 / std::f64::consts::PI).sqrt();
+        let steps = params
+            .travel_step_mm
+            .map_or(0.0, |s| s * params.min_hole_travel_steps);
+        gap.max(steps)
+    };
+    let mut out = Detectable {
+        threshold_mm: params.seed_mm,
+        hole_mm,
+        ..Detectable::default()
+    };
+    if smoothed.len() < 9 || params.false_alarm <= 0.0 {
+        return out;
+    }
+    let centre = median(smoothed);
+    let mut dev: Vec<f64> = smoothed.iter().map(|v| (v - centre).abs()).collect();
+    out.noise_mm = 1.4826 * median(&mut dev);
+    let samples = smoothed.len() as f64 / 9.0;
+    out.sigmas = normal_quantile(1.0 - params.false_alarm / (2.0 * samples.max(1.0)));
+    let needed = out.sigmas * out.noise_mm;
+    if needed > params.seed_mm {
+        out.threshold_mm = needed;
+        out.raised = true;
+    }
+    out
 }
 
 impl Default for DetectParams {
@@ -192,6 +303,7 @@ impl Default for DetectParams {
             min_hole_travel_steps: 3.5,
             min_region_travel_steps: 1.5,
             travel_step_mm: None,
+            false_alarm: 0.01,
         }
     }
 }
@@ -457,6 +569,8 @@ pub struct Detection {
     pub part_bbox_mm: [f64; 4],
     /// Every candidate the rules weighed, in the order found.
     pub candidates: Vec<Candidate>,
+    /// What this scan let inspection see.
+    pub detectable: Detectable,
 }
 
 /// Labels 4- or 8-connected components of cells where `member` holds; returns (labels, sizes); label 0 = none.
@@ -1084,16 +1198,32 @@ pub fn detect(
     // between two stripes' bands) are not edges: the surface on both sides of them is whole.
     let edge_dist = distance_to(w, h, |k| !in_part(k) || !closed[k]);
     let band = (params.edge_band_mm / range.spacing_mm[0].min(range.spacing_mm[1])) as f32;
+    // What the scan's noise lets it see (module docs of `Detectable`), over the part away from its edges.
+    let mut away: Vec<f64> = (0..w * h)
+        .filter(|&k| on_part(k) && edge_dist[k] > band)
+        .map(|k| f64::from(maps.smoothed_mm[k]))
+        .filter(|v| v.is_finite())
+        .collect();
+    out.detectable = detectable(&mut away, params);
+    let seed_mm = out.detectable.threshold_mm;
+    let grow_mm = params.grow_mm * seed_mm / params.seed_mm;
+    if out.detectable.raised {
+        out.warnings.push(format!(
+            "the method looks for deviations from {:.3} mm, but this scan's height noise ({:.4} mm, smoothed) lets \
+             it tell only {seed_mm:.3} mm and more from noise: smaller bumps and dents cannot be seen, and the \
+             threshold was raised to {seed_mm:.3} mm (a scan with less noise: a finer frame step, more light, a \
+             matte surface)",
+            params.seed_mm, out.detectable.noise_mm
+        ));
+    }
     // 2. Deviating regions by hysteresis, one sign at a time.
     let mut candidates: Vec<(Vec<usize>, f64)> = Vec::new();
     for sign in [1.0f32, -1.0] {
-        let grow = |k: usize| on_part(k) && maps.smoothed_mm[k] * sign >= params.grow_mm as f32;
+        let grow = |k: usize| on_part(k) && maps.smoothed_mm[k] * sign >= grow_mm as f32;
         let (label, sizes) = components(w, h, grow, true);
         let mut seeded = vec![false; sizes.len()];
         for k in 0..w * h {
-            if label[k] != 0
-                && maps.smoothed_mm[k] * sign >= params.seed_mm as f32
-                && edge_dist[k] > band
+            if label[k] != 0 && maps.smoothed_mm[k] * sign >= seed_mm as f32 && edge_dist[k] > band
             {
                 seeded[label[k] as usize] = true;
             }
@@ -1208,7 +1338,7 @@ pub fn detect(
             evidence: ev,
         };
         if matches!(kind, DefectKind::Bump | DefectKind::Dent) {
-            measure_bell(range, maps, &s, *sign, peak, params.grow_mm, &mut d);
+            measure_bell(range, maps, &s, *sign, peak, grow_mm, &mut d);
         }
         if let Some(c) = out.candidates.last_mut() {
             c.defect = Some(out.defects.len());
@@ -2383,6 +2513,66 @@ mod tests {
         assert!(d.defects.is_empty(), "{:?}", d.defects);
         assert!(d.warnings.is_empty(), "{:?}", d.warnings);
         assert!(d.coverage > 0.99);
+    }
+
+    #[test]
+    fn the_normal_quantile_matches_its_tables() {
+        for (p, z) in [
+            (0.5, 0.0),
+            (0.975, 1.959_964),
+            (0.8413447, 1.0),
+            (0.999, 3.090_232),
+            (1.0 - 1e-6, 4.753_424),
+            (1e-6, -4.753_424),
+            (0.025, -1.959_964),
+        ] {
+            assert!(
+                (normal_quantile(p) - z).abs() < 1e-5,
+                "{p}: {}",
+                normal_quantile(p)
+            );
+        }
+        assert_eq!(normal_quantile(0.0), f64::NEG_INFINITY);
+        assert_eq!(normal_quantile(1.0), f64::INFINITY);
+    }
+
+    #[test]
+    fn a_noisy_scan_raises_its_threshold_and_says_what_it_can_see() {
+        // 1 mm cells of the top each off by up to ±0.07 mm (the way a printed pattern bends frame centres), and one
+        // dent 0.5 mm deep.
+        let r = plate(|x, y| {
+            let cell =
+                ((x + 100.0).floor() as i64 * 7919 + (y + 100.0).floor() as i64 * 104_729) % 1000;
+            let offset = (cell as f64 / 1000.0 - 0.5) * 0.14;
+            let dent = 0.5 * bell(x.hypot(y - 2.0), 3.0);
+            Some(offset - dent)
+        });
+        let mut rules = SurfaceRules::shipped().expect("rules");
+        let maps = plane_maps(&r);
+        let fixed = DetectParams {
+            false_alarm: 0.0,
+            ..DetectParams::default()
+        };
+        let blind = detect(&r, &maps, &mut rules, &fixed).expect("detect");
+        assert!(blind.defects.len() > 5, "{:?}", blind.defects.len());
+        let d = detect(&r, &maps, &mut rules, &DetectParams::default()).expect("detect");
+        assert!(d.detectable.raised, "{:?}", d.detectable);
+        assert!(d.detectable.threshold_mm > 0.1, "{:?}", d.detectable);
+        assert!(
+            d.warnings.iter().any(|w| w.contains("cannot be seen")),
+            "{:?}",
+            d.warnings
+        );
+        assert_eq!(d.defects.len(), 1, "{:?}", d.defects);
+        assert_eq!(d.defects[0].kind, DefectKind::Dent);
+        // A clean plate keeps the method's threshold.
+        let clean = run(&plate(|_, _| Some(0.0)));
+        assert!(!clean.detectable.raised, "{:?}", clean.detectable);
+        assert_eq!(
+            clean.detectable.threshold_mm,
+            DetectParams::default().seed_mm
+        );
+        assert!(clean.detectable.noise_mm > 0.0 && clean.detectable.noise_mm < 0.005);
     }
 
     #[test]
