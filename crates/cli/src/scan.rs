@@ -9,15 +9,13 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use stripe3d_core::Sensor;
-use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
+use stripe3d_core::accumulate::ModelKind;
 use stripe3d_core::calibrate::{
     Calibration, CalibrationParams, PlaneImage, calibrate, check_camera,
 };
-use stripe3d_core::code::{CodedFrame, CodingParams, CodingStats};
-use stripe3d_core::curvature::CurvatureBias;
+use stripe3d_core::code::{CodedFrame, CodingParams};
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
-use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected, refine_in_time};
-use stripe3d_core::spacetime::{Spacetime, SpacetimeStats};
+use stripe3d_core::scan::{ScanOptions, Scanner, finish_scan, spacetime_for};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
@@ -356,21 +354,19 @@ pub fn travels(sensor: &Sensor, encoder: Option<&Path>, n: usize) -> Result<Vec<
     Ok((0..n).map(|k| conveyor.travel_mm(k)).collect())
 }
 
-/// What a scan produced.
+/// What a scan produced: the chain's result and the time it took.
 pub struct ScanResult {
-    /// Triangulated profiles, in frame order.
-    pub profiles: Vec<Profile>,
-    /// The range image.
-    pub range: RangeImage,
-    /// Coding counts over the scan.
-    pub coding: CodingStats,
-    /// Seconds for extraction, coding and triangulation of all frames.
+    /// Profiles, range image, coding counts, corrections.
+    pub scan: stripe3d_core::scan::ScanResult,
+    /// Seconds from reading the first frame to the range image.
     pub seconds: f64,
-    /// Points whose heights were corrected for the sheets' curvature bias.
-    pub curvature_corrected: usize,
-    /// The spacetime analysis the scan used (`None`: the frame step is too coarse, or it was turned off), and what
-    /// it did.
-    pub spacetime: Option<(Spacetime, SpacetimeStats)>,
+}
+
+impl std::ops::Deref for ScanResult {
+    type Target = stripe3d_core::scan::ScanResult;
+    fn deref(&self) -> &Self::Target {
+        &self.scan
+    }
 }
 
 /// Extracts, codes and triangulates frames, and accumulates them; writes nothing.
@@ -387,12 +383,13 @@ pub fn scan_frames(
     curvature_correction: bool,
     spacetime: bool,
 ) -> Result<ScanResult> {
-    let bias = curvature_correction
-        .then(|| CurvatureBias::new(sensor, &cal.full, extract.method))
-        .flatten();
-    let spacetime = spacetime
-        .then(|| travel_step(travel).and_then(|step| Spacetime::for_scan(sensor, &cal.full, step)))
-        .flatten();
+    let method = extract.method;
+    let options = ScanOptions {
+        grid_mm,
+        curvature_correction,
+        spacetime,
+    };
+    let keep_frames = spacetime_for(sensor, cal, travel, &options).is_some();
     let (w, h) = (sensor.camera.width, sensor.camera.height);
     let scanner = Scanner::new(cal, extract, coding_params, model)?;
     let bar = ProgressBar::new(frames.len() as u64).with_style(
@@ -424,7 +421,7 @@ pub fn scan_frames(
                     FrameData::U16(img) => scanner.code_into(img.view(), &mut c),
                 }
                 bar.inc(1);
-                Ok((c, spacetime.is_some().then_some(frame)))
+                Ok((c, keep_frames.then_some(frame)))
             },
         )
         .collect();
@@ -434,30 +431,13 @@ pub fn scan_frames(
         .collect::<Result<Vec<_>>>()?
         .into_iter()
         .unzip();
-    let (mut profiles, stats, _) = profiles_of(&mut coded, travel, cal, model);
-    let spacetime = spacetime.map(|st| {
-        let images: Vec<FrameData> = kept.into_iter().flatten().collect();
-        let done = refine_in_time(&mut profiles, &images, travel, &cal.full, &st);
-        (st, done)
-    });
-    let seconds = started.elapsed().as_secs_f64();
-    if profiles.iter().all(|p| p.points.is_empty()) {
-        bail!(
-            "nothing was measured in {} frames ({} stripe points found, none could be coded): check the exposure, \
-             the calibration and --range",
-            frames.len(),
-            stats.points
-        );
-    }
-    let (range, curvature_corrected) =
-        range_image_corrected(&mut profiles, grid_mm, bias.as_ref())?;
+    let images: Vec<FrameData> = kept.into_iter().flatten().collect();
+    let scan = finish_scan(
+        &mut coded, &images, travel, sensor, cal, model, method, &options,
+    )?;
     Ok(ScanResult {
-        range,
-        profiles,
-        coding: stats,
-        seconds,
-        curvature_corrected,
-        spacetime,
+        scan,
+        seconds: started.elapsed().as_secs_f64(),
     })
 }
 

@@ -500,6 +500,32 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("back.txt:8"), "{}", stderr(&o));
+    // Dark frames (the laser off): nothing to measure, said so, and nothing written.
+    let dark = dir.path().join("dark");
+    std::fs::create_dir_all(&dark).expect("dir");
+    let mut pgm = b"P5\n648 480\n255\n".to_vec();
+    pgm.extend(std::iter::repeat_n(3u8, 648 * 480));
+    for k in 0..3 {
+        std::fs::write(dark.join(format!("frame_{k}.pgm")), &pgm).expect("frame");
+    }
+    let dark_out = dir.path().join("dark-scan");
+    let o = stripe3d(&[
+        "scan",
+        "--sensor",
+        &sensor,
+        "--calib",
+        &calib,
+        "--out",
+        dark_out.to_str().expect("utf8"),
+        dark.to_str().expect("utf8"),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("nothing was measured in 3 frames"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dark_out.join("cloud.ply").exists());
     // A calibration from another camera.
     let other = std::fs::read_to_string(&calib)
         .expect("calib")

@@ -69,4 +69,15 @@ pub enum CoreError {
         /// What is wrong and what to do.
         message: String,
     },
+    /// A scan in which no point could be coded and triangulated.
+    #[error(
+        "nothing was measured in {frames} frames ({points} stripe points found, none could be coded): check the \
+         exposure, the calibration and the measuring range (--range)"
+    )]
+    NothingMeasured {
+        /// Frames of the scan.
+        frames: usize,
+        /// Stripe points extraction found in them.
+        points: usize,
+    },
 }

@@ -1,7 +1,9 @@
 //! Scanning: one frame to one triangulated profile (extract → code → triangulate); a scan's coded frames
-//! reconciled across frames and triangulated ([`profiles_of`], what `stripe3d scan` does); and a scan's profiles to
-//! a range image. The command line, the benchmarks and the ground-truth tests all go through [`Scanner`], so they
-//! measure the same chain.
+//! reconciled across frames and triangulated ([`profiles_of`]); and the whole rest of a scan after coding —
+//! reconciliation, triangulation, spacetime analysis, accumulation with the curvature correction — in
+//! [`finish_scan`], what `stripe3d scan` and the simulator's in-memory pipeline both run. The command line, the
+//! benchmarks and the ground-truth tests all go through [`Scanner`] and [`finish_scan`], so they measure the same
+//! chain.
 
 use crate::CoreError;
 use crate::accumulate::{ModelKind, Profile, RangeGrid, RangeImage, RangeParams, profile_into};
@@ -12,6 +14,7 @@ use crate::code::{
 use crate::curvature::{CurvatureBias, correct};
 use crate::extract::{ExtractParams, Extraction, Extractor};
 use crate::image::{ImageView, Pixel};
+use crate::sensor::Sensor;
 use crate::spacetime::{Frame, Spacetime, SpacetimeStats};
 use crate::triangulate::FullModel;
 use rayon::prelude::*;
@@ -121,6 +124,95 @@ pub fn profiles_of(
         })
         .collect();
     (profiles, stats, recovered)
+}
+
+/// How a scan is finished after coding.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScanOptions {
+    /// Range image cell size (x, y), mm.
+    pub grid_mm: [f64; 2],
+    /// Correct the heights for the curvature bias of the sheets (for Steger's estimator; see [`crate::curvature`]).
+    pub curvature_correction: bool,
+    /// Place points by their peak in time where the frame step allows it (see [`crate::spacetime`]).
+    pub spacetime: bool,
+}
+
+/// What a scan produced.
+#[derive(Debug, Clone)]
+pub struct ScanResult {
+    /// Triangulated profiles, in frame order.
+    pub profiles: Vec<Profile>,
+    /// The range image.
+    pub range: RangeImage,
+    /// Coding counts over the scan, after reconciliation.
+    pub coding: CodingStats,
+    /// Points whose heights were corrected for the sheets' curvature bias.
+    pub curvature_corrected: usize,
+    /// The spacetime analysis the scan used (`None`: the frame step is too coarse, or it was turned off), and what
+    /// it did.
+    pub spacetime: Option<(Spacetime, SpacetimeStats)>,
+}
+
+/// The spacetime analysis a scan of `sensor` with travel `travel` (mm, per frame) uses, if any: the caller keeps
+/// the frames for [`finish_scan`] when this is `Some`.
+pub fn spacetime_for(
+    sensor: &Sensor,
+    cal: &Calibration,
+    travel: &[f64],
+    options: &ScanOptions,
+) -> Option<Spacetime> {
+    if !options.spacetime {
+        return None;
+    }
+    let mut steps: Vec<f64> = travel.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return None;
+    }
+    steps.sort_by(f64::total_cmp);
+    Spacetime::for_scan(sensor, &cal.full, steps[steps.len() / 2])
+}
+
+/// Finishes a scan from its coded frames (in travel order, `travel[k]` for frame k): reconciles them across frames,
+/// triangulates, places points in time when [`spacetime_for`] says so (`frames` are then the scan's frames, all of
+/// them, in order; otherwise they may be empty) and accumulates them onto a range image with the curvature
+/// correction. `method` is the extraction's estimator (the curvature model is made for Steger's).
+#[allow(clippy::too_many_arguments)]
+pub fn finish_scan<F: Frame>(
+    coded: &mut [CodedFrame],
+    frames: &[F],
+    travel: &[f64],
+    sensor: &Sensor,
+    cal: &Calibration,
+    model: ModelKind,
+    method: crate::extract::Method,
+    options: &ScanOptions,
+) -> Result<ScanResult, CoreError> {
+    let (mut profiles, coding, _) = profiles_of(coded, travel, cal, model);
+    if profiles.iter().all(|p| p.points.is_empty()) {
+        return Err(CoreError::NothingMeasured {
+            frames: coded.len(),
+            points: coding.points,
+        });
+    }
+    let spacetime = spacetime_for(sensor, cal, travel, options)
+        .filter(|_| frames.len() == coded.len())
+        .map(|st| {
+            let done = refine_in_time(&mut profiles, frames, travel, &cal.full, &st);
+            (st, done)
+        });
+    let bias = options
+        .curvature_correction
+        .then(|| CurvatureBias::new(sensor, &cal.full, method))
+        .flatten();
+    let (range, curvature_corrected) =
+        range_image_corrected(&mut profiles, options.grid_mm, bias.as_ref())?;
+    Ok(ScanResult {
+        profiles,
+        range,
+        coding,
+        curvature_corrected,
+        spacetime,
+    })
 }
 
 /// Places every point of a scan's profiles by its peak in time where its temporal profile is a whole peak (see

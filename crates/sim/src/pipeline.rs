@@ -7,11 +7,9 @@ use stripe3d_core::Sensor;
 use stripe3d_core::accumulate::{ModelKind, Profile, RangeImage};
 use stripe3d_core::calibrate::{Calibration, CalibrationParams, PlaneImage, calibrate};
 use stripe3d_core::code::{CodedFrame, CodingParams};
-use stripe3d_core::curvature::CurvatureBias;
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method};
 use stripe3d_core::image::Image;
-use stripe3d_core::scan::{Scanner, profiles_of, range_image_corrected, refine_in_time};
-use stripe3d_core::spacetime::Spacetime;
+use stripe3d_core::scan::{ScanOptions, Scanner, finish_scan, spacetime_for};
 
 /// Plate heights of the simulated calibration, mm: every stripe of the paper's set-up is seen at three of them.
 pub const CALIBRATION_HEIGHTS_MM: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 30.0, 35.0];
@@ -119,31 +117,35 @@ pub fn scan_scene_with(
     let simulator = Simulator::new(sensor, scene, opts)?;
     let mut scanner = scanner(cal)?;
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
-    let spacetime = spacetime
-        .then(|| Spacetime::for_scan(sensor, &cal.full, conveyor.step_mm()))
-        .flatten();
+    let travel: Vec<f64> = (0..frames).map(|k| conveyor.travel_mm(k)).collect();
+    let options = ScanOptions {
+        grid_mm,
+        curvature_correction,
+        spacetime,
+    };
+    let keep_frames = spacetime_for(sensor, cal, &travel, &options).is_some();
     let mut coded = Vec::with_capacity(frames);
-    let mut travel = Vec::with_capacity(frames);
     let mut images: Vec<Image<u16>> = Vec::new();
-    for k in 0..frames {
-        let t = conveyor.travel_mm(k);
+    for (k, &t) in travel.iter().enumerate() {
         let frame = simulator.render(k, t);
         let mut c = CodedFrame::default();
         scanner.code_into(frame.image.view(), &mut c);
         coded.push(c);
-        travel.push(t);
-        if spacetime.is_some() {
+        if keep_frames {
             images.push(frame.image);
         }
     }
-    let (mut profiles, _, _) = profiles_of(&mut coded, &travel, cal, scanner.model());
-    if let Some(st) = &spacetime {
-        refine_in_time(&mut profiles, &images, &travel, &cal.full, st);
-    }
-    let bias = curvature_correction
-        .then(|| CurvatureBias::new(sensor, &cal.full, extract_params().method))
-        .flatten();
-    let (range, _) = range_image_corrected(&mut profiles, grid_mm, bias.as_ref())?;
+    let scan = finish_scan(
+        &mut coded,
+        &images,
+        &travel,
+        sensor,
+        cal,
+        scanner.model(),
+        extract_params().method,
+        &options,
+    )?;
+    let (profiles, range) = (scan.profiles, scan.range);
     Ok(SimulatedScan {
         profiles,
         range,
