@@ -1,6 +1,6 @@
 //! `stripe3d bench scans --scenes N --seed S --frames F`: whole scans of random simulator scenes
 //! (`stripe3d_sim::random`, each with its own frame step), through the chain `stripe3d scan` runs (calibration from
-//! rendered plates, extraction, coding, reconciliation, spacetime analysis where the step allows, curvature
+//! rendered plates exposed for the plates, extraction, coding, reconciliation, spacetime analysis where the step allows, curvature
 //! correction), each scan's points scored against the scene's true height map exactly as the validation set's scans
 //! are (`stripe3d_io::validation::score_heights`: gross errors over 0.5 mm, RMS on smooth parts of the part,
 //! coverage), and the distribution over scenes.
@@ -66,8 +66,12 @@ pub fn score_scan(seed: u64, frames: usize, spacetime: bool) -> Result<ScanFigur
         spacetime: false,
         failed: Some(why),
     };
-    // A sensor whose plates do not calibrate is a finding, not the end of the bench.
-    let cal = match calibrate_sensor(sensor, seed.wrapping_mul(7919)) {
+    // Calibrated as a user does: exposed for the plates. A sensor whose plates do not calibrate is a finding, not
+    // the end of the bench.
+    let calibration = scene
+        .calibration_sensor()
+        .with_context(|| format!("random scene {seed}"))?;
+    let cal = match calibrate_sensor(&calibration, seed.wrapping_mul(7919)) {
         Ok(c) => c,
         Err(e) => return Ok(failed(format!("calibration: {e}"))),
     };

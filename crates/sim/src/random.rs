@@ -217,35 +217,7 @@ impl RandomScene {
     /// Sets the camera's exposure from a noise-free render of frame 0 (module docs); [`RandomScene::sensor`] is then
     /// the one to render and scan the scene with.
     pub fn expose(&mut self) -> Result<(), SimError> {
-        let mut probe = self.sensor.clone();
-        // Linear and unclipped: 2^14 levels for unit radiance, far below the 16-bit ceiling.
-        probe.camera.bits = 16;
-        probe.camera.full_well_e = 4.0e9;
-        probe.camera.exposure_e = 1.0e9;
-        let unit = 65_535.0 / 4.0;
-        let opts = RenderOptions {
-            blur: true,
-            vignetting: self.opts.vignetting,
-            ..RenderOptions::ideal()
-        };
-        let ideal = Simulator::new(&probe, &self.scene, opts)?.render(0, 0.0);
-        let (mut belt, mut part) = (Vec::new(), Vec::new());
-        let w = ideal.image.width();
-        for t in &ideal.truth {
-            let u = t.u.round().clamp(0.0, (w - 1) as f64) as usize;
-            let v = ideal.image.data()[t.row as usize * w + u];
-            let peak = f64::from(v) / unit;
-            if t.world[2] < 1e-3 {
-                belt.push(peak);
-            } else {
-                part.push(peak);
-            }
-        }
-        let median = |v: &mut Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied()
-        };
-        let levels = [median(&mut belt), median(&mut part)];
+        let levels = self.unit_peaks(&self.scene)?;
         let dim = levels
             .iter()
             .flatten()
@@ -271,6 +243,53 @@ impl RandomScene {
         Ok(())
     }
 
+    /// The sensor to calibrate this scene's camera with: its exposure set so that the gauge plates' stripes peak at
+    /// half of full scale. A user exposes for the plates when calibrating; the scene's own exposure, set for its
+    /// dimmer surface, can saturate them (a plate of reflectance 0.6 under an exposure set for a black belt), and a
+    /// saturated stripe's centre is not the sheet's. The planes do not depend on the exposure.
+    pub fn calibration_sensor(&self) -> Result<Sensor, SimError> {
+        let levels = self.unit_peaks(&Scene::covering_plate(5.0))?;
+        let mut sensor = self.sensor.clone();
+        if let Some(peak) = levels[1].filter(|&p| p > 0.0) {
+            sensor.camera.exposure_e = 0.5 * sensor.camera.full_well_e / peak;
+        }
+        Ok(sensor)
+    }
+
+    /// The median peak of the true stripe points on the belt and on the part of `scene`, per unit of exposure (a
+    /// fraction of full scale for an exposure of one full well), from a noise-free render.
+    fn unit_peaks(&self, scene: &Scene) -> Result<[Option<f64>; 2], SimError> {
+        let mut probe = self.sensor.clone();
+        // Linear and unclipped: 2^14 levels for unit radiance, far below the 16-bit ceiling.
+        probe.camera.bits = 16;
+        probe.camera.full_well_e = 4.0e9;
+        probe.camera.exposure_e = 1.0e9;
+        let unit = 65_535.0 / 4.0;
+        let opts = RenderOptions {
+            blur: true,
+            vignetting: self.opts.vignetting,
+            ..RenderOptions::ideal()
+        };
+        let ideal = Simulator::new(&probe, scene, opts)?.render(0, 0.0);
+        let (mut belt, mut part) = (Vec::new(), Vec::new());
+        let w = ideal.image.width();
+        for t in &ideal.truth {
+            let u = t.u.round().clamp(0.0, (w - 1) as f64) as usize;
+            let v = ideal.image.data()[t.row as usize * w + u];
+            let peak = f64::from(v) / unit;
+            if t.world[2] < 1e-3 {
+                belt.push(peak);
+            } else {
+                part.push(peak);
+            }
+        }
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied()
+        };
+        Ok([median(&mut belt), median(&mut part)])
+    }
+
     /// Where the frame's visible surface breaks ([`Simulator::edge_map`]: walls, laser-shadow boundaries, albedo
     /// edges), for scoring away from them.
     pub fn edge_map(&self) -> Result<EdgeMap, SimError> {
@@ -294,6 +313,46 @@ mod tests {
             RandomScene::draw(1).describe(),
             RandomScene::draw(2).describe()
         );
+    }
+
+    #[test]
+    fn the_gauge_plates_are_exposed_for_themselves() {
+        // Seed 38: a black belt (0.03) whose dim stripes set an exposure that saturates a 0.6 plate.
+        let mut d = RandomScene::draw(38);
+        d.sensor.camera.width = 160;
+        d.sensor.camera.height = 120;
+        d.sensor.camera.fx /= 4.05;
+        d.sensor.camera.fy /= 4.05;
+        d.sensor.camera.cx = 79.5;
+        d.sensor.camera.cy = 59.5;
+        d.opts.noise = false;
+        d.opts.speckle = false;
+        d.expose().expect("expose");
+        // The median of the plate's stripes at their true centres, a share of full scale.
+        let peak = |sensor: &Sensor| {
+            let f = Simulator::new(sensor, &Scene::covering_plate(5.0), d.opts.clone())
+                .expect("sim")
+                .render(0, 0.0);
+            let full = f64::from((1u32 << sensor.camera.bits) - 1);
+            let w = f.image.width();
+            let mut v: Vec<f64> = f
+                .truth
+                .iter()
+                .map(|t| {
+                    let u = t.u.round().clamp(0.0, (w - 1) as f64) as usize;
+                    f64::from(f.image.data()[t.row as usize * w + u]) / full
+                })
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let scene_peak = peak(&d.sensor);
+        assert!(
+            scene_peak > 0.99,
+            "the scene's exposure saturates the plate: {scene_peak}"
+        );
+        let p = peak(&d.calibration_sensor().expect("calibration sensor"));
+        assert!((0.4..0.75).contains(&p), "plate peak {p} of full scale");
     }
 
     #[test]
