@@ -169,15 +169,9 @@ impl ScanCase {
 /// The scans of `dir` (a `scans/` folder): every sub-folder holding `frames/` and `heightmap.json`, in name order.
 pub fn scan_cases(dir: &Path) -> Result<Vec<ScanCase>, IoError> {
     let mut out = Vec::new();
-    let entries = std::fs::read_dir(dir).map_err(|source| IoError::Read {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let mut dirs: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.join("frames").is_dir() && p.join("heightmap.json").is_file())
-        .collect();
-    dirs.sort();
+    let dirs = crate::files::read_dir(dir)?
+        .into_iter()
+        .filter(|p| p.join("frames").is_dir() && p.join("heightmap.json").is_file());
     for d in dirs {
         let name = d
             .file_name()

@@ -301,6 +301,17 @@ impl RandomScene {
 mod tests {
     use super::*;
 
+    /// The scene's camera shrunk to 160 x 120 with the same field of view (quick renders).
+    fn small_camera(d: &mut RandomScene) {
+        let cam = &mut d.sensor.camera;
+        cam.width = 160;
+        cam.height = 120;
+        cam.fx /= 4.05;
+        cam.fy /= 4.05;
+        cam.cx = 79.5;
+        cam.cy = 59.5;
+    }
+
     #[test]
     fn every_draw_is_a_valid_scene_and_sensor_and_seeds_reproduce() {
         for seed in 0..200 {
@@ -319,12 +330,7 @@ mod tests {
     fn the_gauge_plates_are_exposed_for_themselves() {
         // Seed 38: a black belt (0.03) whose dim stripes set an exposure that saturates a 0.6 plate.
         let mut d = RandomScene::draw(38);
-        d.sensor.camera.width = 160;
-        d.sensor.camera.height = 120;
-        d.sensor.camera.fx /= 4.05;
-        d.sensor.camera.fy /= 4.05;
-        d.sensor.camera.cx = 79.5;
-        d.sensor.camera.cy = 59.5;
+        small_camera(&mut d);
         d.opts.noise = false;
         d.opts.speckle = false;
         d.expose().expect("expose");
@@ -359,12 +365,7 @@ mod tests {
     fn ambient_light_leaves_the_stripes_headroom() {
         // Seed 20: a white part (0.91) under strong ambient light (0.21), whose drawn exposure saturates the part.
         let mut d = RandomScene::draw(20);
-        d.sensor.camera.width = 160;
-        d.sensor.camera.height = 120;
-        d.sensor.camera.fx /= 4.05;
-        d.sensor.camera.fy /= 4.05;
-        d.sensor.camera.cx = 79.5;
-        d.sensor.camera.cy = 59.5;
+        small_camera(&mut d);
         d.sensor.camera.bits = 16;
         d.opts.noise = false;
         d.opts.speckle = false;
@@ -401,12 +402,7 @@ mod tests {
     fn the_dimmer_surface_peaks_at_the_drawn_level() {
         // A small frame keeps the test quick; the exposure rule does not depend on the size.
         let mut d = RandomScene::draw(7);
-        d.sensor.camera.width = 160;
-        d.sensor.camera.height = 120;
-        d.sensor.camera.fx /= 4.05;
-        d.sensor.camera.fy /= 4.05;
-        d.sensor.camera.cx = 79.5;
-        d.sensor.camera.cy = 59.5;
+        small_camera(&mut d);
         d.opts.noise = false;
         d.opts.speckle = false;
         d.opts.ambient = false;
