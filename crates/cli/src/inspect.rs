@@ -96,6 +96,9 @@ pub struct InspectArgs {
     /// When scanning frames, keep each frame's stripe centres (see `stripe3d scan --help`).
     #[arg(long)]
     pub no_spacetime: bool,
+    /// When scanning frames, what the sensor sees of colour frames (as `stripe3d scan --laser`) [default: auto].
+    #[arg(long, value_parser = crate::extract::parse_laser)]
+    pub laser: Option<stripe3d_io::images::Laser>,
 }
 
 fn is_range_input(frames: &[PathBuf]) -> bool {
@@ -402,6 +405,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         args.no_curvature_correction
             .then_some("--no-curvature-correction"),
         args.no_spacetime.then_some("--no-spacetime"),
+        args.laser.map(|_| "--laser"),
     ]
     .into_iter()
     .flatten()
@@ -501,6 +505,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             grid,
             !args.no_curvature_correction,
             !args.no_spacetime,
+            args.laser.unwrap_or_default(),
         )?;
         write_scan(&args.out, &res, &frames, &travel, ModelKind::Full, range_mm)?;
         (

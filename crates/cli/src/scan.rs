@@ -19,7 +19,7 @@ use stripe3d_core::scan::{ScanOptions, Scanner, finish_scan, spacetime_for};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
 use stripe3d_io::files::prepare_dir;
-use stripe3d_io::images::{FrameData, read_frame_native};
+use stripe3d_io::images::{FrameData, Laser, read_frame_native_as};
 use stripe3d_io::{read_coding_params, read_sensor, write_atomic};
 
 /// Largest frame accepted, pixels.
@@ -41,6 +41,11 @@ pub struct CalibrateArgs {
     /// Sub-pixel estimator for the plate images.
     #[arg(long, default_value = "steger", value_parser = clap::builder::PossibleValuesParser::new(crate::extract::method_names()))]
     pub method: String,
+    /// What the sensor sees of colour frames (RGB, RGBA; PNG, JPEG, TIFF), as `stripe3d extract --laser`: auto (the
+    /// most saturated colour), red, green, blue, luma, r, g, b or WR,WG,WB [default: auto]. Grey frames are read as
+    /// they are.
+    #[arg(long, value_parser = crate::extract::parse_laser)]
+    pub laser: Option<Laser>,
 }
 
 /// Triangulation model.
@@ -95,6 +100,11 @@ pub struct ScanArgs {
     /// bias printed texture, rims and curvature give the centre of a stripe).
     #[arg(long)]
     pub no_spacetime: bool,
+    /// What the sensor sees of colour frames (RGB, RGBA; PNG, JPEG, TIFF), as `stripe3d extract --laser`: auto (the
+    /// most saturated colour), red, green, blue, luma, r, g, b or WR,WG,WB [default: auto]. Grey frames are read as
+    /// they are.
+    #[arg(long, value_parser = crate::extract::parse_laser)]
+    pub laser: Option<Laser>,
 }
 
 /// The stripe-coding options of the commands that scan frames (`stripe3d scan`, `stripe3d inspect`).
@@ -183,6 +193,7 @@ pub fn calibrate_plates(
     sensor: &Sensor,
     planes: &[(f64, PathBuf)],
     method: &str,
+    laser: Laser,
 ) -> Result<Calibration> {
     extractor(method)?;
     let images: Vec<PlaneImage> = planes
@@ -190,7 +201,7 @@ pub fn calibrate_plates(
         .map_init(
             || extractor(method),
             |ex, (h, path)| -> Result<PlaneImage> {
-                let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
+                let frame = read_frame_native_as(path, MAX_FRAME_PIXELS, Some(laser))?;
                 let (w, hgt) = frame.size();
                 if (w as u32, hgt as u32) != (sensor.camera.width, sensor.camera.height) {
                     bail!(
@@ -220,7 +231,12 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
         .iter()
         .map(|p| parse_plane(p))
         .collect::<Result<_>>()?;
-    let cal = calibrate_plates(&sensor, &planes, &args.method)?;
+    let cal = calibrate_plates(
+        &sensor,
+        &planes,
+        &args.method,
+        args.laser.unwrap_or_default(),
+    )?;
     say!(
         "calibrated {} stripes from {} plate images at {:?} mm",
         cal.stripes.len(),
@@ -256,7 +272,8 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
 
 fn is_image(p: &Path) -> bool {
     p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-        ["png", "pgm", "pnm", "tif", "tiff"].contains(&e.to_ascii_lowercase().as_str())
+        ["png", "jpg", "jpeg", "pgm", "pnm", "tif", "tiff"]
+            .contains(&e.to_ascii_lowercase().as_str())
     })
 }
 
@@ -273,7 +290,7 @@ pub fn frame_list(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
             files.sort();
             if files.is_empty() {
                 bail!(
-                    "{}: the folder holds no PNG, PGM or TIFF frames",
+                    "{}: the folder holds no PNG, JPEG, PGM or TIFF frames",
                     p.display()
                 );
             }
@@ -382,6 +399,7 @@ pub fn scan_frames(
     grid_mm: [f64; 2],
     curvature_correction: bool,
     spacetime: bool,
+    laser: Laser,
 ) -> Result<ScanResult> {
     let method = extract.method;
     let options = ScanOptions {
@@ -406,7 +424,7 @@ pub fn scan_frames(
         .map_init(
             || scanner.clone(),
             |scanner, path| {
-                let frame = read_frame_native(path, MAX_FRAME_PIXELS)?;
+                let frame = read_frame_native_as(path, MAX_FRAME_PIXELS, Some(laser))?;
                 let (fw, fh) = frame.size();
                 if (fw as u32, fh as u32) != (w, h) {
                     bail!(
@@ -493,6 +511,7 @@ pub fn run_scan(args: &ScanArgs) -> Result<ScanResult> {
         grid,
         !args.no_curvature_correction,
         !args.no_spacetime,
+        args.laser.unwrap_or_default(),
     )?;
     write_scan(&args.out, &res, &frames, &travel, model, range_mm)?;
     Ok(res)

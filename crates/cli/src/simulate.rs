@@ -331,6 +331,7 @@ fn scan_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         planes,
         out: calib.clone(),
         method: "steger".into(),
+        laser: None,
     })?;
     let scan_dir = out.join("scan");
     let res = scan_simulation(sim_dir, &calib, &scan_dir)?;
@@ -378,6 +379,7 @@ fn scan_simulation(sim_dir: &Path, calib: &Path, out: &Path) -> Result<crate::sc
         cut_asymmetry: stripe3d_core::extract::DEFAULT_CUT_ASYMMETRY,
         no_curvature_correction: false,
         no_spacetime: false,
+        laser: None,
     })
 }
 
@@ -447,6 +449,7 @@ fn inspect_demo(out: &Path, sim_dir: &Path) -> Result<()> {
         coding: crate::scan::CodingArgs::default(),
         no_curvature_correction: false,
         no_spacetime: false,
+        laser: None,
     })?;
     let inspection = &outcome.inspection;
     let sensor = read_sensor(&sim_dir.join("sensor.toml"))?;

@@ -20,7 +20,7 @@ use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceS
 use stripe3d_core::code::{CodingParams, CodingStats};
 use stripe3d_core::detect::{DetectParams, SurfaceRules, inspect};
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
-use stripe3d_io::images::read_frame_native;
+use stripe3d_io::images::{Laser, read_frame_native};
 use stripe3d_io::read_sensor;
 use stripe3d_io::validation::{
     HeightMap, HeightScore, PART_MM, TrueDefect, extract_cases, read_height_map, read_true_centres,
@@ -108,7 +108,7 @@ pub fn calibrate_set(dir: &Path, params: &ExtractParams) -> Result<(Sensor, Cali
     if planes.is_empty() {
         bail!("{}: no plane_HH.HH.png plates", folder.display());
     }
-    let cal = calibrate_plates(&sensor, &planes, params.method.name())
+    let cal = calibrate_plates(&sensor, &planes, params.method.name(), Laser::Auto)
         .with_context(|| format!("calibrating from {}", folder.display()))?;
     Ok((sensor, cal))
 }
@@ -233,6 +233,7 @@ pub fn score_scans(
             default_grid(&scan_sensor),
             true,
             spacetime,
+            Laser::Auto,
         )
         .with_context(|| format!("scanning {}", c.dir.display()))?;
         let map = read_height_map(&c.dir.join("heightmap.json"))?;

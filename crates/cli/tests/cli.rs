@@ -526,6 +526,60 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
         stderr(&o)
     );
     assert!(!dark_out.join("cloud.ply").exists());
+    // The demo's frames as a colour camera would give them (the green laser in G, a quarter of it in R and B):
+    // `--laser green` (and auto) scan them as the grey frames.
+    let colour = dir.path().join("colour");
+    std::fs::create_dir_all(&colour).expect("dir");
+    for entry in std::fs::read_dir(&frames).expect("frames") {
+        let path = entry.expect("entry").path();
+        let f = stripe3d_io::images::read_frame(&path).expect("frame");
+        let rgb: Vec<u8> = f
+            .image
+            .data()
+            .iter()
+            .flat_map(|&v| {
+                let g = v.min(255) as u8;
+                [g / 4, g, g / 4]
+            })
+            .collect();
+        let name = path.file_name().expect("name");
+        stripe3d_io::images::write_rgb_png(
+            &colour.join(name),
+            f.image.width(),
+            f.image.height(),
+            &rgb,
+        )
+        .expect("colour frame");
+    }
+    let points = |dir: &Path| -> u64 {
+        let json: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("range.json")).expect("range.json"),
+        )
+        .expect("json");
+        json["points"].as_u64().expect("points")
+    };
+    let grey = points(&out.join("scan"));
+    for laser in [vec!["--laser", "green"], vec![]] {
+        let colour_out = dir.path().join("colour-scan");
+        let mut args = vec![
+            "scan",
+            "--sensor",
+            &sensor,
+            "--calib",
+            &calib,
+            "--out",
+            colour_out.to_str().expect("utf8"),
+        ];
+        args.extend(laser.iter().copied());
+        args.push(colour.to_str().expect("utf8"));
+        let o = stripe3d(&args);
+        assert!(o.status.success(), "{laser:?}: {}", stderr(&o));
+        let n = points(&colour_out);
+        assert!(
+            (n as f64 - grey as f64).abs() < 0.01 * grey as f64,
+            "{laser:?}: {n} points from colour frames, {grey} from grey"
+        );
+    }
     // A calibration from another camera.
     let other = std::fs::read_to_string(&calib)
         .expect("calib")
