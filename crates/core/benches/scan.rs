@@ -1,6 +1,7 @@
 //! Per-frame cost of the stages after extraction: stripe coding, triangulation, accumulation, on a 648x480 frame
 //! of the paper's set-up with 11 stripes on a 10 mm plate (5,280 points).
 //! A whole depth image (22 frames) with and without the curvature-bias correction, on a wavy surface.
+//! The spacetime analysis of one frame's points over 5 frames on each side.
 //! One core unless `RAYON_NUM_THREADS` is set.
 
 use stripe3d_core::Sensor;
@@ -183,5 +184,57 @@ fn depth_image_curvature_corrected(b: divan::Bencher) {
             stripe3d_core::scan::range_image_corrected(&mut p, grid, Some(&bias)).expect("range");
         assert!(n > 50_000, "{n} points corrected");
         r.width
+    });
+}
+
+/// Spacetime analysis of one frame's 5,280 points over 5 frames on each side (0.2 mm a frame): frames of Gaussian
+/// stripes (1.6 px) at the plate's columns, which a flat plate keeps still while it moves.
+#[divan::bench]
+fn spacetime_frame(b: divan::Bencher) {
+    use stripe3d_core::image::Image;
+    use stripe3d_core::spacetime::Spacetime;
+    let (model, pts) = frame();
+    let mut coder = StripeCoder::new(&model, 648, 480, CodingParams::default()).expect("coder");
+    let mut coding = Coding::default();
+    coder.code_into(&pts, &mut coding);
+    let mut image = Image::<u8>::new(648, 480);
+    for p in &pts {
+        let row = p.row as usize * 648;
+        let lo = (p.x - 6.0).max(0.0) as usize;
+        let hi = ((p.x + 6.0) as usize).min(647);
+        for u in lo..=hi {
+            let d = u as f64 - p.x;
+            let v = 200.0 * (-d * d / (2.0 * 1.6 * 1.6)).exp();
+            let px = &mut image.data_mut()[row + u];
+            *px = (*px as f64 + v).min(255.0) as u8;
+        }
+    }
+    let frames: Vec<Image<u8>> = (0..11).map(|_| image.clone()).collect();
+    let travel: Vec<f64> = (0..11).map(|k| 0.2 * k as f64).collect();
+    let st = Spacetime {
+        half_window: 5,
+        sigma_travel_mm: 0.32,
+    };
+    let mut base = Profile::default();
+    profile_into(
+        5,
+        travel[5],
+        &pts,
+        &coding,
+        &model,
+        None,
+        ModelKind::Full,
+        &mut base,
+    );
+    let mut check = base.clone();
+    let done = st.refine(&mut check, &frames, &travel, &model);
+    assert!(
+        done.refined * 10 > done.points * 9,
+        "{done:?}: the still stripes are whole peaks in time"
+    );
+    b.bench_local(|| {
+        let mut p = base.clone();
+        st.refine(&mut p, divan::black_box(&frames), &travel, &model)
+            .refined
     });
 }
