@@ -540,6 +540,13 @@ pub fn write_scan(
             "coding_range_mm": [range_mm.0, range_mm.1],
             "points": n,
             "coding": {"points": s.points, "coded": s.coded, "ambiguous": s.ambiguous, "noise": s.noise},
+            "spacetime": res.spacetime.as_ref().map(|(st, done)| json!({
+                "half_window_frames": st.half_window,
+                "beam_sigma_travel_mm": st.sigma_travel_mm,
+                "points": done.points,
+                "placed_in_time": done.refined,
+            })),
+            "curvature_corrected": res.curvature_corrected,
         }),
     )?;
     let pct = |a: usize| 100.0 * a as f64 / s.points.max(1) as f64;
