@@ -545,6 +545,7 @@ pub fn write_scan(
                 "beam_sigma_travel_mm": st.sigma_travel_mm,
                 "points": done.points,
                 "placed_in_time": done.refined,
+                "dropped": done.unsettled,
             })),
             "curvature_corrected": res.curvature_corrected,
         }),
@@ -565,11 +566,13 @@ pub fn write_scan(
     );
     if let Some((st, done)) = &res.spacetime {
         say!(
-            "{} of {} points ({:.1}%) placed by their peak in time (spacetime analysis over {} frames on each side; \
-             beam sigma {:.2} mm along the travel; --no-spacetime to keep each frame's centres)",
+            "{} of {} points ({:.1}%) placed by their peak in time, {} dropped as no whole peak in time (hidden part \
+             of the time, or lit on two surfaces) (spacetime analysis over {} frames on each side; beam sigma {:.2} mm \
+             along the travel; --no-spacetime to keep each frame's centres)",
             done.refined,
             done.points,
             100.0 * done.refined as f64 / done.points.max(1) as f64,
+            done.unsettled,
             st.half_window,
             st.sigma_travel_mm
         );

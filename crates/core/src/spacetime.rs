@@ -28,9 +28,11 @@
 //!    `t`, weighted by `y²`; its peak `t* = −b / 2c` is the travel at which P is on the centre plane;
 //! 3. P is the point of the ray through (u, v) in frame k that, moved by `t*`, lies on sheet s's calibrated plane.
 //!
-//! A point is left as the frame gave it when its temporal profile is not a whole peak: the brightest sample at the
-//! end of the window (the scan's first or last frames, or P hidden part of the time), fewer than three samples
-//! above [`MIN_SHARE`], samples only on one side of the peak, or a fit that does not open downwards.
+//! A temporal profile that is not a whole peak (the brightest sample at the end of the window, samples above
+//! [`MIN_SHARE`] on one side of the peak only, a fit that does not open downwards) settles nothing. Where the scan's
+//! first or last frames cut the window, the point keeps its frame's centre. Where the whole window lies inside the
+//! scan, P was hidden part of the time or its pixel mixes the light of two surfaces (the beam straddling a rim):
+//! the frame's centre is no measurement of a surface either, and the point is dropped (and counted).
 //!
 //! # When
 //!
@@ -98,6 +100,9 @@ pub struct SpacetimeStats {
     pub points: usize,
     /// Points placed by their peak in time.
     pub refined: usize,
+    /// Points whose whole window lies inside the scan but whose brightness over it is not a whole peak (hidden
+    /// part of the time, or light from two surfaces): dropped, their frame's centre being no measurement either.
+    pub unsettled: usize,
 }
 
 impl SpacetimeStats {
@@ -105,6 +110,7 @@ impl SpacetimeStats {
     pub fn add(&mut self, other: &SpacetimeStats) {
         self.points += other.points;
         self.refined += other.refined;
+        self.unsettled += other.unsettled;
     }
 }
 
@@ -162,7 +168,12 @@ impl Spacetime {
             .min(frames.len() - 1)
             .min(travel.len() - 1);
         let mut samples: Vec<(f64, f64)> = Vec::with_capacity(hi - lo + 1);
-        for p in profile.points.iter_mut() {
+        // Whether the whole window lies inside the scan: a point whose crossing the scan's first or last frames cut
+        // keeps its frame's centre; any other that is no whole peak is dropped.
+        let whole_window =
+            k >= self.half_window && k + self.half_window < frames.len().min(travel.len());
+        let mut keep = vec![true; profile.points.len()];
+        for (i, p) in profile.points.iter_mut().enumerate() {
             stats.points += 1;
             let Some(plane) = full.planes.get(usize::from(p.stripe)) else {
                 continue;
@@ -187,6 +198,10 @@ impl Spacetime {
                 samples.push((t, value));
             }
             let Some(t_peak) = temporal_peak(&samples) else {
+                if whole_window {
+                    keep[i] = false;
+                    stats.unsettled += 1;
+                }
                 continue;
             };
             // The point of the ray through (u, v) at frame k that, moved by t_peak, lies on the plane:
@@ -207,6 +222,8 @@ impl Spacetime {
             p.spacetime = true;
             stats.refined += 1;
         }
+        let mut flags = keep.iter();
+        profile.points.retain(|_| *flags.next().unwrap_or(&true));
         stats
     }
 }
@@ -307,6 +324,89 @@ mod tests {
             let t = temporal_peak(&samples).expect("a whole peak");
             assert!((t - mu).abs() < 1e-5, "{t} for {mu}");
         }
+    }
+
+    /// Eleven frames 0.2 mm apart of one still stripe (Gaussian, 1.6 px) at the column stripe 5 has on a 10 mm
+    /// plate, dark in the frames `dark`; the profile of frame 5 with the stripe's points.
+    fn still_stripe(
+        dark: std::ops::Range<usize>,
+    ) -> (FullModel, Vec<Image<u8>>, Vec<f64>, Profile) {
+        use crate::accumulate::ProfilePoint;
+        let sensor = Sensor::default();
+        let model = FullModel::nominal(&sensor);
+        let mut lit = Image::<u8>::new(648, 480);
+        let mut points = Vec::new();
+        for row in 100..380u32 {
+            let c = model
+                .column_at_height(5, f64::from(row), 10.0)
+                .expect("in view");
+            for u in (c - 6.0) as usize..=(c + 6.0) as usize {
+                let d = u as f64 - c;
+                lit.data_mut()[row as usize * 648 + u] = (200.0 * (-d * d / 5.12).exp()) as u8;
+            }
+            let w = model.point(5, c, f64::from(row)).expect("point");
+            points.push(ProfilePoint {
+                stripe: 5,
+                row,
+                u: c,
+                x_mm: w.x - 1.0,
+                y_mm: w.y,
+                z_mm: w.z,
+                intensity: 200.0,
+                spacetime: false,
+            });
+        }
+        let frames = (0..11)
+            .map(|k| {
+                if dark.contains(&k) {
+                    Image::new(648, 480)
+                } else {
+                    lit.clone()
+                }
+            })
+            .collect();
+        let travel = (0..11).map(|k| 0.2 * k as f64).collect();
+        let profile = Profile {
+            frame: 5,
+            travel_mm: 1.0,
+            points,
+        };
+        (model, frames, travel, profile)
+    }
+
+    #[test]
+    fn a_point_hidden_part_of_its_crossing_is_dropped_not_kept_at_its_frames_centre() {
+        let st = Spacetime {
+            half_window: 5,
+            sigma_travel_mm: 0.32,
+        };
+        let (model, frames, travel, mut whole) = still_stripe(0..0);
+        let n = whole.points.len();
+        let done = st.refine(&mut whole, &frames, &travel, &model);
+        assert_eq!((done.refined, done.unsettled), (n, 0), "{done:?}");
+        // Placed on the plate it was triangulated on (a still stripe on a flat plate crosses where it is seen).
+        assert!(
+            whole
+                .points
+                .iter()
+                .all(|p| (p.z_mm - 10.0).abs() < 0.01 && p.spacetime)
+        );
+        // Dark for the frames before its own: half a crossing, dropped.
+        let (model, frames, travel, mut hidden) = still_stripe(0..5);
+        let done = st.refine(&mut hidden, &frames, &travel, &model);
+        assert_eq!((done.refined, done.unsettled), (0, n), "{done:?}");
+        assert!(hidden.points.is_empty());
+        // The same cut by the scan's start (a window not inside the scan): kept at its frame's centre.
+        let (model, frames, travel, mut early) = still_stripe(0..0);
+        early.frame = 2;
+        early.travel_mm = travel[2];
+        for p in &mut early.points {
+            p.x_mm += 1.0 - travel[2];
+        }
+        let (frames, travel) = (frames[..8].to_vec(), travel[..8].to_vec());
+        let done = st.refine(&mut early, &frames, &travel, &model);
+        assert_eq!(done.unsettled, 0, "{done:?}");
+        assert_eq!(early.points.len(), n);
     }
 
     #[test]
