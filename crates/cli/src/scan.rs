@@ -15,6 +15,7 @@ use stripe3d_core::calibrate::{
 };
 use stripe3d_core::code::{CodedFrame, CodingParams};
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
+pub use stripe3d_core::scan::travel_step;
 use stripe3d_core::scan::{ScanOptions, Scanner, finish_scan, spacetime_for};
 use stripe3d_io::calib::{calibration_to_toml, read_calibration};
 use stripe3d_io::cloud::{write_ply, write_range};
@@ -337,16 +338,6 @@ fn parse_range(s: &str) -> Result<(f64, f64)> {
         bail!("--range {s}: MAX must be above MIN");
     }
     Ok((lo, hi))
-}
-
-/// The typical conveyor travel between frames (the median step), mm; `None` with fewer than two frames.
-pub fn travel_step(travel: &[f64]) -> Option<f64> {
-    let mut steps: Vec<f64> = travel.windows(2).map(|w| w[1] - w[0]).collect();
-    if steps.is_empty() {
-        return None;
-    }
-    steps.sort_by(f64::total_cmp);
-    Some(steps[steps.len() / 2])
 }
 
 /// Travel (mm since frame 0) of each of `n` frames.

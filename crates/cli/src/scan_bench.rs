@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use stripe3d_core::spacetime::Spacetime;
-use stripe3d_io::validation::{HeightMap, HeightScore, score_heights};
+use stripe3d_io::validation::{HeightMap, HeightScore, score_profiles};
 use stripe3d_sim::RenderOptions;
 use stripe3d_sim::heightfield::HeightField;
 use stripe3d_sim::pipeline::{calibrate_sensor, scan_scene_with};
@@ -92,15 +92,8 @@ pub fn score_scan(seed: u64, frames: usize, spacetime: bool) -> Result<ScanFigur
         spacetime,
     )
     .with_context(|| format!("scanning random scene {seed}"))?;
-    let heights = height_map(scan.simulator.height_field()).map(|map| {
-        let points: Vec<[f64; 3]> = scan
-            .profiles
-            .iter()
-            .flat_map(|p| &p.points)
-            .map(|p| [p.x_mm, p.y_mm, p.z_mm])
-            .collect();
-        score_heights(&map, &points)
-    });
+    let heights =
+        height_map(scan.simulator.height_field()).map(|map| score_profiles(&map, &scan.profiles));
     Ok(ScanFigures {
         seed,
         description,

@@ -23,8 +23,8 @@ use stripe3d_core::extract::{ExtractParams, Extraction, Extractor};
 use stripe3d_io::images::{Laser, read_frame_native};
 use stripe3d_io::read_sensor;
 use stripe3d_io::validation::{
-    HeightMap, HeightScore, PART_MM, TrueDefect, extract_cases, read_height_map, read_true_centres,
-    read_true_defects, scan_cases, score_heights,
+    HeightMap, HeightScore, PART_MM, SMOOTH_RADIUS_MM, SMOOTH_STEP_MM, TrueDefect, extract_cases,
+    read_height_map, read_true_centres, read_true_defects, scan_cases, score_profiles,
 };
 use stripe3d_sim::evaluate::RowScore;
 
@@ -144,9 +144,10 @@ pub struct ScanFigures {
     pub seconds: f64,
 }
 
-/// Whether the true part of `map` is flat (within 0.25 mm) away from its listed defects and from its edges.
+/// Whether the true part of `map` is flat (within the scoring's smoothness step) away from its listed defects and
+/// from its edges.
 fn flat_apart_from(map: &HeightMap, defects: &[TrueDefect]) -> bool {
-    let smooth = map.smooth_mask(1.0, 0.25);
+    let smooth = map.smooth_mask(SMOOTH_RADIUS_MM, SMOOTH_STEP_MM);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for j in 0..map.rows {
         for i in 0..map.cols {
@@ -167,7 +168,7 @@ fn flat_apart_from(map: &HeightMap, defects: &[TrueDefect]) -> bool {
             }
         }
     }
-    hi - lo < 0.25
+    hi - lo < SMOOTH_STEP_MM
 }
 
 /// Matches reported defects (kind name, centre) with the true ones, greedily by distance.
@@ -237,13 +238,7 @@ pub fn score_scans(
         )
         .with_context(|| format!("scanning {}", c.dir.display()))?;
         let map = read_height_map(&c.dir.join("heightmap.json"))?;
-        let points: Vec<[f64; 3]> = res
-            .profiles
-            .iter()
-            .flat_map(|p| &p.points)
-            .map(|p| [p.x_mm, p.y_mm, p.z_mm])
-            .collect();
-        let heights = score_heights(&map, &points);
+        let heights = score_profiles(&map, &res.profiles);
         let truth = read_true_defects(&c.dir.join("defects.json"))?;
         let defects = if flat_apart_from(&map, &truth) {
             let mut rules = SurfaceRules::shipped()?;

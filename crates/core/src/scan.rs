@@ -164,12 +164,17 @@ pub fn spacetime_for(
     if !options.spacetime {
         return None;
     }
+    Spacetime::for_scan(sensor, &cal.full, travel_step(travel)?)
+}
+
+/// The typical conveyor travel between frames (the median step), mm; `None` with fewer than two frames.
+pub fn travel_step(travel: &[f64]) -> Option<f64> {
     let mut steps: Vec<f64> = travel.windows(2).map(|w| w[1] - w[0]).collect();
     if steps.is_empty() {
         return None;
     }
     steps.sort_by(f64::total_cmp);
-    Spacetime::for_scan(sensor, &cal.full, steps[steps.len() / 2])
+    Some(steps[steps.len() / 2])
 }
 
 /// Finishes a scan from its coded frames (in travel order, `travel[k]` for frame k): reconciles them across frames,

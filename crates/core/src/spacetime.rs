@@ -46,7 +46,7 @@ use crate::accumulate::Profile;
 use crate::image::{Image, Pixel};
 use crate::sensor::Sensor;
 use crate::triangulate::FullModel;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 /// Samples used in the fit are at least this share of the brightest (after the background is taken off): below it
 /// the beam's tails are dominated by noise and the profile's shape by the sensor's blur.
@@ -172,7 +172,7 @@ impl Spacetime {
         // keeps its frame's centre; any other that is no whole peak is dropped.
         let whole_window =
             k >= self.half_window && k + self.half_window < frames.len().min(travel.len());
-        let mut keep = vec![true; profile.points.len()];
+        let mut dropped: Vec<usize> = Vec::new();
         for (i, p) in profile.points.iter_mut().enumerate() {
             stats.points += 1;
             let Some(plane) = full.planes.get(usize::from(p.stripe)) else {
@@ -199,8 +199,7 @@ impl Spacetime {
             }
             let Some(t_peak) = temporal_peak(&samples) else {
                 if whole_window {
-                    keep[i] = false;
-                    stats.unsettled += 1;
+                    dropped.push(i);
                 }
                 continue;
             };
@@ -222,8 +221,14 @@ impl Spacetime {
             p.spacetime = true;
             stats.refined += 1;
         }
-        let mut flags = keep.iter();
-        profile.points.retain(|_| *flags.next().unwrap_or(&true));
+        stats.unsettled = dropped.len();
+        if !dropped.is_empty() {
+            let mut i = 0;
+            profile.points.retain(|_| {
+                i += 1;
+                dropped.binary_search(&(i - 1)).is_err()
+            });
+        }
         stats
     }
 }
@@ -259,49 +264,23 @@ pub fn temporal_peak(samples: &[(f64, f64)]) -> Option<f64> {
     }
     // Weighted least squares of ln y = a + b t + c t² with weights y², t centred on the brightest sample.
     let t0 = samples[imax].0;
-    let mut m = [[0.0f64; 3]; 3];
-    let mut rhs = [0.0f64; 3];
+    let mut m = Matrix3::<f64>::zeros();
+    let mut rhs = Vector3::<f64>::zeros();
     for &(t, v) in &samples[first..=last] {
         let y = v - background;
-        let (w, l, t) = (y * y, y.ln(), t - t0);
-        let basis = [1.0, t, t * t];
-        for a in 0..3 {
-            rhs[a] += w * basis[a] * l;
-            for b in 0..3 {
-                m[a][b] += w * basis[a] * basis[b];
-            }
-        }
+        let t = t - t0;
+        let basis = Vector3::new(1.0, t, t * t);
+        m += y * y * basis * basis.transpose();
+        rhs += y * y * y.ln() * basis;
     }
-    let [_, b, c] = solve3(m, rhs)?;
+    let coef = m.lu().solve(&rhs)?;
+    let (b, c) = (coef[1], coef[2]);
     if c.is_nan() || c >= 0.0 {
         return None;
     }
     let t = -b / (2.0 * c);
     let (t_first, t_last) = (samples[first].0 - t0, samples[last].0 - t0);
     (t.is_finite() && t > t_first && t < t_last).then_some(t0 + t)
-}
-
-/// Solves the 3 x 3 system `m x = rhs` by Cramer's rule; `None` when it is singular.
-fn solve3(m: [[f64; 3]; 3], rhs: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |a: &[[f64; 3]; 3]| {
-        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
-            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
-    };
-    let d = det(&m);
-    let scale = m.iter().flatten().fold(0.0f64, |s, v| s.max(v.abs()));
-    if d.is_nan() || d.abs() <= 1e-12 * scale.powi(3) {
-        return None;
-    }
-    let mut out = [0.0; 3];
-    for (col, o) in out.iter_mut().enumerate() {
-        let mut a = m;
-        for row in 0..3 {
-            a[row][col] = rhs[row];
-        }
-        *o = det(&a) / d;
-    }
-    Some(out)
 }
 
 #[cfg(test)]

@@ -378,6 +378,19 @@ pub const SMOOTH_STEP_MM: f64 = 0.25;
 /// A cell is on the part when its true height is above this, mm (the belt is at 0).
 pub const PART_MM: f64 = 0.05;
 
+/// [`score_heights`] of every point of a scan's profiles.
+pub fn score_profiles(
+    map: &HeightMap,
+    profiles: &[stripe3d_core::accumulate::Profile],
+) -> HeightScore {
+    let points: Vec<[f64; 3]> = profiles
+        .iter()
+        .flat_map(|p| &p.points)
+        .map(|p| [p.x_mm, p.y_mm, p.z_mm])
+        .collect();
+    score_heights(map, &points)
+}
+
 /// Scores points `(x, y, z)` mm against `map`: gross errors over all points, RMS over the (non-gross) points on
 /// smooth parts of the part, coverage of the smooth part cells.
 pub fn score_heights(map: &HeightMap, points: &[[f64; 3]]) -> HeightScore {
