@@ -2,7 +2,8 @@
 //! the line.
 //!
 //! 1. **Lines.** In each image, the extracted points are linked down the rows into lines (a stripe on a flat plate
-//!    is one long, nearly vertical line); short fragments are ignored.
+//!    is one long, nearly vertical line); pieces of one stripe (broken where it dims, or where the lens bends it out
+//!    of the image at a side) are joined, and short fragments are ignored.
 //! 2. **Which stripe is which.** A flat plate keeps the stripes in order, so within an image only the index of the
 //!    first line is unknown (stripes leave the view at the sides as the plate rises, and over a realistic range a
 //!    stripe moves by more than the pitch). The image whose lines fit the nominal geometry of `sensor.toml` best,
@@ -140,8 +141,16 @@ impl Line {
     }
 }
 
-/// Links an image's points into long lines, ordered by column.
-fn lines_of(points: &[StripePoint], rows: u32, params: &CalibrationParams) -> Vec<Line> {
+/// Links an image's points into long lines, ordered by column. Pieces of one stripe are joined first: a stripe on a
+/// flat plate is one smooth curve, so two pieces whose rows do not overlap and whose facing ends lie within a
+/// quarter of the stripe pitch (`pitch_px`) of each other in column are the same stripe, broken where it dims or
+/// where the lens's distortion bends it out of the image (as with a stripe at the image's side).
+fn lines_of(
+    points: &[StripePoint],
+    rows: u32,
+    pitch_px: f64,
+    params: &CalibrationParams,
+) -> Vec<Line> {
     let mut pts: Vec<&StripePoint> = points.iter().filter(|p| p.x.is_finite()).collect();
     pts.sort_by(|a, b| a.row.cmp(&b.row).then(a.x.total_cmp(&b.x)));
     let mut lines: Vec<Line> = Vec::new();
@@ -179,6 +188,7 @@ fn lines_of(points: &[StripePoint], rows: u32, params: &CalibrationParams) -> Ve
             }
         }
     }
+    let lines = join_pieces(lines, 0.25 * pitch_px);
     let min_points = (params.min_line_share * f64::from(rows)).max(3.0) as usize;
     let mut long: Vec<Line> = lines
         .into_iter()
@@ -186,6 +196,35 @@ fn lines_of(points: &[StripePoint], rows: u32, params: &CalibrationParams) -> Ve
         .collect();
     long.sort_by(|a, b| a.median_column().total_cmp(&b.median_column()));
     long
+}
+
+/// Joins line pieces (see [`lines_of`]): in order of their first row, each piece continues the piece ending above
+/// it whose last point is nearest its first in column, within `reach_px`. Pieces of a few points (noise) stay
+/// alone.
+fn join_pieces(mut lines: Vec<Line>, reach_px: f64) -> Vec<Line> {
+    const MIN_PIECE: usize = 3;
+    lines.sort_by_key(|l| l.points.first().map_or(0, |p| p.0));
+    let mut joined: Vec<Line> = Vec::with_capacity(lines.len());
+    for line in lines {
+        let (Some(&(row, col)), true) = (line.points.first(), line.points.len() >= MIN_PIECE)
+        else {
+            joined.push(line);
+            continue;
+        };
+        let above = joined
+            .iter_mut()
+            .filter(|l| l.points.len() >= MIN_PIECE)
+            .filter_map(|l| {
+                let &(r, c) = l.points.last()?;
+                (r < row && (c - col).abs() <= reach_px).then_some(((c - col).abs(), l))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        match above {
+            Some((_, l)) => l.points.extend_from_slice(&line.points),
+            None => joined.push(line),
+        }
+    }
+    joined
 }
 
 /// Column of nominal stripe `k` at height `z` on `row`.
@@ -285,9 +324,10 @@ pub fn calibrate(
     let n = sensor.laser.stripes;
     let rows = sensor.camera.height;
     let nominal = FullModel::nominal(sensor);
+    let pitch_px = sensor.laser.pitch_mm * sensor.camera.fx / sensor.camera.height_mm;
     let lines: Vec<Vec<Line>> = order
         .iter()
-        .map(|&i| lines_of(&images[i].points, rows, params))
+        .map(|&i| lines_of(&images[i].points, rows, pitch_px, params))
         .collect();
     for (k, &i) in order.iter().enumerate() {
         if lines[k].is_empty() {
@@ -351,7 +391,6 @@ pub fn calibrate(
                 images[order[to]].name, zf
             )));
         };
-        let pitch_px = sensor.laser.pitch_mm * sensor.camera.fx / sensor.camera.height_mm;
         if err > 0.25 * pitch_px || second < 2.0 * err {
             return Err(fail(format!(
                 "{} ({} mm): its stripes do not follow from the image at {} mm (they are {:.1} px from where the \

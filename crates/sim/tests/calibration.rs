@@ -106,3 +106,33 @@ fn too_few_heights_duplicates_and_mislabelled_images_are_refused() {
     eprintln!("mislabelled: {err}");
     assert!(err.to_string().contains("plate-8mm.png"), "{err}");
 }
+
+#[test]
+fn a_stripe_broken_into_two_pieces_is_one_stripe() {
+    // The first stripe of the 20 mm plate loses its middle rows (dimmed, or bent out of the image by the lens):
+    // two long pieces at one column, which are one stripe, not two.
+    let sensor = Sensor::default();
+    let mut imgs = images(&sensor, &[0.0, 5.0, 10.0, 20.0, 30.0]);
+    let whole = calibrate(&sensor, &imgs, &CalibrationParams::default()).expect("calibrates");
+    let plate = &mut imgs[3];
+    let first = plate
+        .points
+        .iter()
+        .filter(|p| p.row == 240)
+        .map(|p| p.x)
+        .fold(f64::INFINITY, f64::min);
+    let before = plate.points.len();
+    plate
+        .points
+        .retain(|p| !((p.x - first).abs() < 5.0 && (150..330).contains(&p.row)));
+    assert!(
+        plate.points.len() + 150 < before,
+        "the cut removed the rows"
+    );
+    let cal = calibrate(&sensor, &imgs, &CalibrationParams::default()).expect("calibrates");
+    assert_eq!(cal.full.planes.len(), 11);
+    for (k, r) in cal.stripes.iter().enumerate() {
+        assert_eq!(r.heights_mm, whole.stripes[k].heights_mm, "stripe {k}");
+        assert!(r.full_rms_mm < 0.02, "stripe {k}: {}", r.full_rms_mm);
+    }
+}
