@@ -149,22 +149,47 @@ pub const NOISE_QUANTILE: f64 = 0.5;
 const HALF_NORMAL_QUANTILE: f64 = 0.674_490;
 
 /// The robust standard deviation of a zero-mean variable from the absolute first differences of a signal: their
-/// median ([`NOISE_QUANTILE`]) over that of a half-normal variable, interpolated within the integer bins (`diffs` is
-/// reordered).
+/// median ([`NOISE_QUANTILE`]) over that of a half-normal variable, interpolated within the integer bins (`diffs` may
+/// be reordered).
 pub fn sigma_from_differences(diffs: &mut [u16]) -> f64 {
     if diffs.is_empty() {
         return 0.0;
     }
     let half = ((diffs.len() as f64 * NOISE_QUANTILE) as usize).min(diffs.len() - 1);
-    let m = *diffs.select_nth_unstable(half).1;
-    let (mut below, mut equal) = (0usize, 0usize);
+    // The order statistic and the counts below and at it, from a histogram of the small values where the quantile
+    // lies among them (noise differences are a few levels; a stripe's are the few large ones), else by selection:
+    // the same three numbers either way.
+    const BINS: usize = 64;
+    let mut hist = [0u32; BINS];
     for &d in diffs.iter() {
-        if d < m {
-            below += 1;
-        } else if d == m {
-            equal += 1;
+        if usize::from(d) < BINS {
+            hist[usize::from(d)] += 1;
         }
     }
+    let mut cum = 0usize;
+    let mut found = None;
+    for (v, &c) in hist.iter().enumerate() {
+        if cum + c as usize > half {
+            found = Some((v as u16, cum, c as usize));
+            break;
+        }
+        cum += c as usize;
+    }
+    let (m, below, equal) = match found {
+        Some(f) => f,
+        None => {
+            let m = *diffs.select_nth_unstable(half).1;
+            let (mut below, mut equal) = (0usize, 0usize);
+            for &d in diffs.iter() {
+                if d < m {
+                    below += 1;
+                } else if d == m {
+                    equal += 1;
+                }
+            }
+            (m, below, equal)
+        }
+    };
     // Bin m covers [m - 0.5, m + 0.5) (bin 0: [0, 0.5)); the quantile is where its share of the counts is reached.
     let target = diffs.len() as f64 * NOISE_QUANTILE;
     let frac = ((target - below as f64) / equal.max(1) as f64).clamp(0.0, 1.0);
@@ -240,14 +265,35 @@ impl NoiseMap {
                 smoothed(sum, detect);
                 summed_line(img, rows_axis, kb, scale, acc, sum);
                 smoothed(sum, detect_b);
+                // Tile by tile (each tile's differences in the order of the line).
                 for line in [&*detect, &*detect_b] {
-                    for (i, pair) in line.windows(NOISE_LAG + 1).enumerate() {
-                        along[i / tile].push(pair[0].abs_diff(pair[NOISE_LAG]));
+                    let n = line.len().saturating_sub(NOISE_LAG);
+                    for (xt, into) in along.iter_mut().enumerate() {
+                        let (a, b) = (xt * tile, ((xt + 1) * tile).min(n));
+                        if a >= b {
+                            break;
+                        }
+                        into.extend(
+                            line[a..b]
+                                .iter()
+                                .zip(&line[a + NOISE_LAG..b + NOISE_LAG])
+                                .map(|(p, q)| p.abs_diff(*q)),
+                        );
                     }
                 }
                 if kb != k {
-                    for (i, (a, b)) in detect.iter().zip(detect_b.iter()).enumerate() {
-                        across[i / tile].push(a.abs_diff(*b));
+                    let n = detect.len().min(detect_b.len());
+                    for (xt, into) in across.iter_mut().enumerate() {
+                        let (a, b) = (xt * tile, ((xt + 1) * tile).min(n));
+                        if a >= b {
+                            break;
+                        }
+                        into.extend(
+                            detect[a..b]
+                                .iter()
+                                .zip(&detect_b[a..b])
+                                .map(|(p, q)| p.abs_diff(*q)),
+                        );
                     }
                 }
             }
@@ -318,6 +364,25 @@ impl NoiseMap {
 mod tests {
     use super::*;
     use crate::image::Image;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The histogram's order statistic and counts are the selection's, wherever the quantile falls.
+        #[test]
+        fn the_noise_quantile_is_the_selections(mut diffs in proptest::collection::vec(0u16..200, 1..300)) {
+            let half = ((diffs.len() as f64 * NOISE_QUANTILE) as usize).min(diffs.len() - 1);
+            let mut sorted = diffs.clone();
+            sorted.sort_unstable();
+            let m = sorted[half];
+            let below = sorted.iter().filter(|&&d| d < m).count();
+            let equal = sorted.iter().filter(|&&d| d == m).count();
+            let target = diffs.len() as f64 * NOISE_QUANTILE;
+            let frac = ((target - below as f64) / equal.max(1) as f64).clamp(0.0, 1.0);
+            let median = if m == 0 { 0.5 * frac } else { f64::from(m) - 0.5 + frac };
+            let expected = median / HALF_NORMAL_QUANTILE / std::f64::consts::SQRT_2;
+            prop_assert_eq!(sigma_from_differences(&mut diffs), expected);
+        }
+    }
 
     fn gaussian_noise(seed: &mut u64) -> f64 {
         // Box-Muller from a 64-bit LCG.
