@@ -70,7 +70,8 @@ pub struct ScanArgs {
     /// Output folder: cloud.ply, range.tiff, range.json, range.png, range-colour.png, intensity.tiff, intensity.png.
     #[arg(long)]
     pub out: PathBuf,
-    /// Frames in scan order: images (PNG, PGM, TIFF) or folders of them (taken in name order).
+    /// Frames in scan order: images (PNG, JPEG, PGM, TIFF) or folders of them (taken in name order, numbers by value:
+    /// frame_2 before frame_10).
     #[arg(required = true, value_name = "FRAME")]
     pub frames: Vec<PathBuf>,
     /// Conveyor position of each frame in mm, one per line [default: speed and fps of sensor.toml].
@@ -278,7 +279,8 @@ fn is_image(p: &Path) -> bool {
     })
 }
 
-/// Expands folders into their images in name order.
+/// Expands folders into their images in name order, numbers by value (`frame_2` before `frame_10`, see
+/// [`stripe3d_io::files::natural_order`]).
 pub fn frame_list(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in inputs {
@@ -288,7 +290,14 @@ pub fn frame_list(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
                 .filter_map(|e| e.ok().map(|e| e.path()))
                 .filter(|f| f.is_file() && is_image(f))
                 .collect();
-            files.sort();
+            files.sort_by(|a, b| {
+                let name = |p: &Path| {
+                    p.file_name()
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default()
+                };
+                stripe3d_io::files::natural_order(&name(a), &name(b))
+            });
             if files.is_empty() {
                 bail!(
                     "{}: the folder holds no PNG, JPEG, PGM or TIFF frames",
@@ -539,6 +548,7 @@ pub fn write_scan(
                 "dropped": done.unsettled,
             })),
             "curvature_corrected": res.curvature_corrected,
+            "warnings": res.warnings.iter().map(|w| w.to_string()).collect::<Vec<_>>(),
         }),
     )?;
     let pct = |a: usize| 100.0 * a as f64 / s.points.max(1) as f64;
@@ -575,6 +585,9 @@ pub fn write_scan(
             res.curvature_corrected,
             100.0 * res.curvature_corrected as f64 / n.max(1) as f64
         );
+    }
+    for w in &res.warnings {
+        eprintln!("warning: {w}");
     }
     let (lo, hi) = res.range.z_range().unwrap_or((0.0, 0.0));
     say!(

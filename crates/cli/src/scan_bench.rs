@@ -32,6 +32,8 @@ pub struct ScanFigures {
     pub spacetime: bool,
     /// Why the scene could not be scanned (its plates did not calibrate, nothing was measured), if so.
     pub failed: Option<String>,
+    /// The scan's warnings about its input: on a scene drawn within the sensor's range, each is a false alarm.
+    pub warnings: Vec<String>,
 }
 
 /// The simulator's true height field as a height map for the validation scoring.
@@ -65,6 +67,7 @@ pub fn score_scan(seed: u64, frames: usize, spacetime: bool) -> Result<ScanFigur
         heights: None,
         spacetime: false,
         failed: Some(why),
+        warnings: Vec::new(),
     };
     // Calibrated as a user does: exposed for the plates. A sensor whose plates do not calibrate is a finding, not
     // the end of the bench.
@@ -100,6 +103,7 @@ pub fn score_scan(seed: u64, frames: usize, spacetime: bool) -> Result<ScanFigur
         heights,
         spacetime,
         failed: None,
+        warnings: scan.warnings.iter().map(|w| w.to_string()).collect(),
     })
 }
 
@@ -195,11 +199,23 @@ pub fn bench_scans(scenes: usize, seed: u64, frames: usize, spacetime: bool) -> 
             );
         }
     }
+    let warned: Vec<&ScanFigures> = figures.iter().filter(|f| !f.warnings.is_empty()).collect();
+    if !warned.is_empty() {
+        say!("warned about their input ({}):", warned.len());
+        for f in &warned {
+            say!(
+                "  seed {}: {}; {}",
+                f.seed,
+                f.warnings.join("; "),
+                f.description
+            );
+        }
+    }
     list("most gross errors", &|h| h.gross_rate());
     list("largest RMS", &|h| h.rms_mm);
     say!(
         "summary: scans over {} scenes ({} not scanned): gross errors median {:.4}, 95th percentile {:.4}; RMS median {:.4} mm, 95th \
-         percentile {:.4} mm; coverage median {:.3}, 5th percentile {:.3}",
+         percentile {:.4} mm; coverage median {:.3}, 5th percentile {:.3}; {} warned about their input",
         scored.len(),
         failures.len(),
         quantile(&gross, 0.5),
@@ -207,7 +223,8 @@ pub fn bench_scans(scenes: usize, seed: u64, frames: usize, spacetime: bool) -> 
         quantile(&rms, 0.5),
         quantile(&rms, 0.95),
         quantile(&coverage, 0.5),
-        quantile(&coverage, 0.05)
+        quantile(&coverage, 0.05),
+        warned.len()
     );
     Ok(())
 }

@@ -500,6 +500,60 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("back.txt:8"), "{}", stderr(&o));
+    // One frame: a profile, with a warning in range.json and on stderr.
+    let one = dir.path().join("one");
+    std::fs::create_dir_all(&one).expect("dir");
+    let first = std::fs::read_dir(&frames)
+        .expect("frames")
+        .map(|e| e.expect("entry").path())
+        .min()
+        .expect("a frame");
+    std::fs::copy(&first, one.join("frame_0000.png")).expect("copy");
+    let one_out = dir.path().join("one-scan");
+    let o = stripe3d(&[
+        "scan",
+        "--sensor",
+        &sensor,
+        "--calib",
+        &calib,
+        "--out",
+        one_out.to_str().expect("utf8"),
+        one.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("warning: one frame"), "{}", stderr(&o));
+    let json = std::fs::read_to_string(one_out.join("range.json")).expect("range.json");
+    assert!(
+        json.contains("one frame: the range image is a single profile"),
+        "{json}"
+    );
+    // A calibration whose planes do not fit the frames (the lasers moved by 36 mm since): warned, naming it.
+    let text = std::fs::read_to_string(&calib).expect("calib");
+    let moved: String = text
+        .lines()
+        .map(|l| match l.strip_prefix("offset_mm = ") {
+            Some(v) => format!("offset_mm = {}\n", v.parse::<f64>().expect("offset") + 30.0),
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let moved = write(dir.path(), "moved.toml", &moved);
+    let warned_out = dir.path().join("warned-scan");
+    let warned_out = warned_out.to_str().expect("utf8");
+    let o = stripe3d(&[
+        "scan", "--sensor", &sensor, "--calib", &moved, "--out", warned_out, &frames,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("lie where no calibrated stripe can put them"),
+        "{}",
+        stderr(&o)
+    );
+    // The fitting calibration: no warning.
+    let o = stripe3d(&[
+        "scan", "--sensor", &sensor, "--calib", &calib, "--out", warned_out, &frames,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("warning"), "{}", stderr(&o));
     // Dark frames (the laser off): nothing to measure, said so, and nothing written.
     let dark = dir.path().join("dark");
     std::fs::create_dir_all(&dark).expect("dir");

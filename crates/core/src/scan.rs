@@ -151,6 +151,54 @@ pub struct ScanResult {
     /// The spacetime analysis the scan used (`None`: the frame step is too coarse, or it was turned off), and what
     /// it did.
     pub spacetime: Option<(Spacetime, SpacetimeStats)>,
+    /// What about the input makes the result doubtful (see [`ScanWarning`]).
+    pub warnings: Vec<ScanWarning>,
+}
+
+/// Largest share of a scan's stripe points that no calibrated stripe explains (outside every stripe's band over the
+/// measuring range, or declared false) before the scan warns ([`ScanWarning::Unexplained`]): where the calibration
+/// fits, those are extraction's few false points (a few percent); a quarter of the light or more lying where no
+/// calibrated sheet can put it says the calibration does not fit the frames.
+pub const MAX_UNEXPLAINED_SHARE: f64 = 0.25;
+
+/// Something about a scan's input that makes its result doubtful, reported with the result (a scan that cannot be
+/// made at all is an error instead).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ScanWarning {
+    /// The scan has one frame: the range image is a single profile, with nothing across the travel.
+    #[error(
+        "one frame: the range image is a single profile; a scan needs frames taken while the part moves under \
+         the sheets"
+    )]
+    OneFrame,
+    /// More than [`MAX_UNEXPLAINED_SHARE`] of the stripe points lie where no calibrated stripe explains them.
+    #[error(
+        "{unexplained} of {points} stripe points ({:.0}%) lie where no calibrated stripe can put them: is the \
+         calibration this sensor's, and the camera and lasers unmoved since?",
+        100.0 * *unexplained as f64 / (*points).max(1) as f64
+    )]
+    Unexplained {
+        /// Points no stripe explains.
+        unexplained: usize,
+        /// Stripe points extracted.
+        points: usize,
+    },
+}
+
+/// The warnings a scan of `frames` frames with coding counts `coding` earns.
+pub fn scan_warnings(frames: usize, coding: &CodingStats) -> Vec<ScanWarning> {
+    let mut out = Vec::new();
+
+    if frames == 1 {
+        out.push(ScanWarning::OneFrame);
+    }
+    if coding.noise as f64 > MAX_UNEXPLAINED_SHARE * coding.points as f64 {
+        out.push(ScanWarning::Unexplained {
+            unexplained: coding.noise,
+            points: coding.points,
+        });
+    }
+    out
 }
 
 /// The spacetime analysis a scan of `sensor` with travel `travel` (mm, per frame) uses, if any: the caller keeps
@@ -212,6 +260,7 @@ pub fn finish_scan<F: Frame>(
     let (range, curvature_corrected) =
         range_image_corrected(&mut profiles, options.grid_mm, bias.as_ref())?;
     Ok(ScanResult {
+        warnings: scan_warnings(coded.len(), &coding),
         profiles,
         range,
         coding,

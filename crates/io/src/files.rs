@@ -66,9 +66,80 @@ pub fn read_dir(path: &Path) -> Result<Vec<PathBuf>, IoError> {
     Ok(out)
 }
 
+/// Orders names the way a person reads numbered files: runs of digits compare by their value (`frame_2` before
+/// `frame_10`, as a camera that does not pad its counter writes them), everything else character by character;
+/// names equal so (`frame_02`, `frame_2`) fall back to plain order. Zero-padded names keep their plain order.
+pub fn natural_order(a: &str, b: &str) -> std::cmp::Ordering {
+    use std::cmp::Ordering;
+    let (mut x, mut y) = (a.as_bytes(), b.as_bytes());
+    loop {
+        match (x.first(), y.first()) {
+            (None, None) => return a.cmp(b),
+            (None, Some(_)) => return Ordering::Less,
+            (Some(_), None) => return Ordering::Greater,
+            (Some(p), Some(q)) if p.is_ascii_digit() && q.is_ascii_digit() => {
+                let run = |s: &[u8]| s.iter().take_while(|c| c.is_ascii_digit()).count();
+                let (m, n) = (run(x), run(y));
+                // Value order: without leading zeros, the longer run is the larger; of equal length, plain order.
+                let strip = |s: &[u8]| {
+                    let z = s.iter().take_while(|&&c| c == b'0').count();
+                    s[z.min(s.len().saturating_sub(1))..].to_vec()
+                };
+                let (u, v) = (strip(&x[..m]), strip(&y[..n]));
+                let by_value = u.len().cmp(&v.len()).then_with(|| u.cmp(&v));
+                if by_value != Ordering::Equal {
+                    return by_value;
+                }
+                (x, y) = (&x[m..], &y[n..]);
+            }
+            (Some(p), Some(q)) => {
+                if p != q {
+                    return p.cmp(q);
+                }
+                (x, y) = (&x[1..], &y[1..]);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn numbered_names_go_by_their_numbers() {
+        let mut names = vec![
+            "frame_10.png",
+            "frame_2.png",
+            "frame_1.png",
+            "frame_0100.png",
+            "a.png",
+        ];
+        names.sort_by(|a, b| natural_order(a, b));
+        assert_eq!(
+            names,
+            [
+                "a.png",
+                "frame_1.png",
+                "frame_2.png",
+                "frame_10.png",
+                "frame_0100.png"
+            ]
+        );
+    }
+
+    proptest! {
+        /// Zero-padded counters keep their plain order; unpadded ones sort by value; the order is total.
+        #[test]
+        fn padded_names_keep_their_order_and_unpadded_sort_by_value(a in 0u32..100_000, b in 0u32..100_000, p in "[a-z_]{0,6}") {
+            let (pa, pb) = (format!("{p}{a:06}.png"), format!("{p}{b:06}.png"));
+            prop_assert_eq!(natural_order(&pa, &pb), pa.cmp(&pb));
+            let (ua, ub) = (format!("{p}{a}.png"), format!("{p}{b}.png"));
+            prop_assert_eq!(natural_order(&ua, &ub), a.cmp(&b));
+            prop_assert_eq!(natural_order(&ua, &ub), natural_order(&ub, &ua).reverse());
+        }
+    }
 
     #[test]
     fn atomic_write_replaces_and_leaves_no_temporary() {

@@ -85,6 +85,8 @@ pub struct SimulatedScan {
     pub range: RangeImage,
     /// The simulator that rendered the frames (true height field and defects).
     pub simulator: Simulator,
+    /// What the scan found doubtful about its input (see [`stripe3d_core::scan::ScanWarning`]).
+    pub warnings: Vec<stripe3d_core::scan::ScanWarning>,
 }
 
 /// Renders `frames` frames of `scene` (travel from the sensor's conveyor), and scans them with the full model on a
@@ -145,10 +147,10 @@ pub fn scan_scene_with(
         extract_params().method,
         &options,
     )?;
-    let (profiles, range) = (scan.profiles, scan.range);
     Ok(SimulatedScan {
-        profiles,
-        range,
+        profiles: scan.profiles,
+        range: scan.range,
         simulator,
+        warnings: scan.warnings,
     })
 }
