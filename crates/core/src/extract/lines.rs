@@ -71,10 +71,6 @@ pub const END_REFERENCE_LINES: u32 = 3;
 /// and still measure it (see [`link_lines`]): half a pixel, the accuracy a found point is held to.
 pub const BLEND_PX: f64 = 0.5;
 
-/// Standard errors by which the two sides' columns must differ for a step (see [`link_lines`]): three, the level
-/// at which a normal scatter passes once in about 400 points.
-pub const STEP_SIGMAS: f64 = 3.0;
-
 fn find(parent: &mut [u32], mut i: u32) -> u32 {
     while parent[i as usize] != i {
         let p = parent[i as usize];
@@ -162,9 +158,8 @@ const NO_NODE: u32 = u32::MAX;
 /// Drops the points where a line passes from one surface to another inside a scan line (a step whose stripes lie
 /// within a link's reach, so that one line runs over both) and the point lies on the dimmer surface's side of the
 /// edge — its level below the mean of the levels of the [`END_REFERENCE_LINES`] scan lines before and after it — yet
-/// more than [`BLEND_PX`] off that surface's own column, where the two surfaces' columns (one slope fitted to both
-/// sides) differ by more than twice that and by [`STEP_SIGMAS`] standard errors (a step, not a speckle's scatter):
-/// the scan line's
+/// more than [`BLEND_PX`] off that surface's own column (extrapolated from its two nearest points), where the two
+/// surfaces' columns differ by more than twice that (a step, not a speckle's scatter): the scan line's
 /// centre lies on the dimmer surface, and the point is a blend of both surfaces' light, a measurement of neither. A
 /// printed edge on one surface leaves the column where it was, and its points stay. `pred[i]` is node `i`'s link
 /// to the scan line before.
@@ -210,38 +205,16 @@ fn drop_blends(nodes: &[Node], pred: &[u32], keep: &mut [bool]) {
         if 2.0 * nodes[i].snr >= a + b {
             continue;
         }
-        // Each side's own column at this scan line, from one slope fitted to both sides with a column each (least
-        // squares): a step lies between them when they differ by more than a blend's tolerance on each side and by
-        // more than STEP_SIGMAS standard errors of that difference (the sides' own scatter: a dim, speckled line's
-        // columns wander without a step).
-        let (before, after) = (&before[..nb], &after[..na]);
-        let t = |j: usize| f64::from(nodes[j].line) - f64::from(nodes[i].line);
-        let mean = |side: &[usize], f: &dyn Fn(usize) -> f64| {
-            side.iter().map(|&j| f(j)).sum::<f64>() / side.len() as f64
+        // Each side's own column at this scan line: a step lies between them when they differ by more than a
+        // blend's tolerance on each side.
+        let own = |side: &[usize]| {
+            let (p, q) = (&nodes[side[0]], &nodes[side[1]]);
+            let slope = (p.x - q.x) / (f64::from(p.line) - f64::from(q.line));
+            p.x + slope * (f64::from(nodes[i].line) - f64::from(p.line))
         };
-        let x = |j: usize| nodes[j].x;
-        let (tb, ta) = (mean(before, &t), mean(after, &t));
-        let (xb, xa) = (mean(before, &x), mean(after, &x));
-        let (mut stt, mut stx) = (0.0, 0.0);
-        for (side, tm, xm) in [(before, tb, xb), (after, ta, xa)] {
-            for &j in side {
-                stt += (t(j) - tm).powi(2);
-                stx += (t(j) - tm) * (x(j) - xm);
-            }
-        }
-        let slope = if stt > 0.0 { stx / stt } else { 0.0 };
-        let (ob, oa) = (xb - slope * tb, xa - slope * ta);
-        let rss: f64 = [(before, ob), (after, oa)]
-            .iter()
-            .flat_map(|&(side, o)| side.iter().map(move |&j| (x(j) - o - slope * t(j)).powi(2)))
-            .sum();
-        let dof = (nb + na).saturating_sub(3).max(1) as f64;
-        let se = (rss / dof
-            * (1.0 / nb as f64 + 1.0 / na as f64 + (tb - ta).powi(2) / stt.max(1e-12)))
-        .sqrt();
-        let step = (ob - oa).abs();
+        let (ob, oa) = (own(&before[..nb]), own(&after[..na]));
         let dim = if a < b { ob } else { oa };
-        if step > 2.0 * BLEND_PX && step > STEP_SIGMAS * se && (nodes[i].x - dim).abs() > BLEND_PX {
+        if (ob - oa).abs() > 2.0 * BLEND_PX && (nodes[i].x - dim).abs() > BLEND_PX {
             drop.push(i);
         }
     }
