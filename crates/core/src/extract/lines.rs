@@ -13,10 +13,7 @@
 //! line's centre only when the surface covers that centre, that is when at least half of the scan line is lit:
 //! an end point whose signal-to-noise ratio is below half the mean of the next [`END_REFERENCE_LINES`] scan lines
 //! of its line is dropped (the edge lies before the scan line's centre). With a symmetric blur the half-level
-//! point is the edge whatever the blur's width, so the rule has no parameter. Where a step's two surfaces put their
-//! stripes within a link's reach, one line runs over both, and the scan line holding the edge gives a blend of the
-//! two surfaces' light: on the dimmer surface's side of the edge and off that surface's column by more than
-//! [`BLEND_PX`], it is dropped too (see `drop_blends`).
+//! point is the edge whatever the blur's width, so the rule has no parameter.
 //!
 //! Why these numbers: with Gaussian noise a candidate's prominence over its valleys reaches 6 sigma by chance less
 //! than once in 10^8 pixels, so a seed is light; at 3.5 sigma chance peaks occur about once per 10^3 pixels, a few
@@ -67,10 +64,6 @@ pub struct Node {
 /// documentation).
 pub const END_REFERENCE_LINES: u32 = 3;
 
-/// How far (px) a point on the dimmer side of an edge inside its scan line may lie from that surface's own column
-/// and still measure it (see [`link_lines`]): half a pixel, the accuracy a found point is held to.
-pub const BLEND_PX: f64 = 0.5;
-
 fn find(parent: &mut [u32], mut i: u32) -> u32 {
     while parent[i as usize] != i {
         let p = parent[i as usize];
@@ -96,8 +89,6 @@ pub fn link_lines(nodes: &[Node], params: &LineParams, keep: &mut Vec<bool>) {
     }
     starts.push((u32::MAX, nodes.len()));
     let mut parent: Vec<u32> = (0..nodes.len() as u32).collect();
-    // Each node's link to the line before (NO_NODE: none).
-    let mut pred: Vec<u32> = vec![NO_NODE; nodes.len()];
     for s in 1..starts.len() - 1 {
         let (line, a) = starts[s];
         let b = starts[s + 1].1;
@@ -122,7 +113,6 @@ pub fn link_lines(nodes: &[Node], params: &LineParams, keep: &mut Vec<bool>) {
                     .filter(|&(_, d)| d <= reach)
                     .min_by(|p, q| p.1.total_cmp(&q.1));
                 if let Some((k, _)) = best {
-                    pred[i] = (pa + k) as u32;
                     let (ri, rk) = (
                         find(&mut parent, i as u32),
                         find(&mut parent, (pa + k) as u32),
@@ -149,78 +139,6 @@ pub fn link_lines(nodes: &[Node], params: &LineParams, keep: &mut Vec<bool>) {
         roots.push(r);
     }
     drop_partial_ends(nodes, &roots, keep);
-    drop_blends(nodes, &pred, keep);
-}
-
-/// A node index that is none.
-const NO_NODE: u32 = u32::MAX;
-
-/// Drops the points where a line passes from one surface to another inside a scan line (a step whose stripes lie
-/// within a link's reach, so that one line runs over both) and the point lies on the dimmer surface's side of the
-/// edge — its level below the mean of the levels of the [`END_REFERENCE_LINES`] scan lines before and after it — yet
-/// more than [`BLEND_PX`] off that surface's own column (extrapolated from its two nearest points), where the two
-/// surfaces' columns differ by more than twice that (a step, not a speckle's scatter): the scan line's
-/// centre lies on the dimmer surface, and the point is a blend of both surfaces' light, a measurement of neither. A
-/// printed edge on one surface leaves the column where it was, and its points stay. `pred[i]` is node `i`'s link
-/// to the scan line before.
-fn drop_blends(nodes: &[Node], pred: &[u32], keep: &mut [bool]) {
-    let n = nodes.len();
-    // Each node's unique successor (NO_NODE: none, or more than one).
-    let mut succ = vec![NO_NODE; n];
-    let mut claims = vec![0u8; n];
-    for (i, &p) in pred.iter().enumerate() {
-        if p != NO_NODE {
-            let p = p as usize;
-            claims[p] = claims[p].saturating_add(1);
-            succ[p] = if claims[p] == 1 { i as u32 } else { NO_NODE };
-        }
-    }
-    // Up to END_REFERENCE_LINES kept nodes along `next` from i.
-    let walk = |i: usize, next: &[u32], out: &mut [usize; END_REFERENCE_LINES as usize]| -> usize {
-        let (mut at, mut count) = (i, 0);
-        while count < out.len() {
-            let j = next[at];
-            if j == NO_NODE || !keep[j as usize] {
-                break;
-            }
-            at = j as usize;
-            out[count] = at;
-            count += 1;
-        }
-        count
-    };
-    let mut drop = Vec::new();
-    let (mut before, mut after) = ([0usize; 3], [0usize; 3]);
-    for i in 0..n {
-        if !keep[i] {
-            continue;
-        }
-        let (nb, na) = (walk(i, pred, &mut before), walk(i, &succ, &mut after));
-        if nb < 2 || na < 2 {
-            continue;
-        }
-        let mean =
-            |side: &[usize]| side.iter().map(|&j| nodes[j].snr).sum::<f64>() / side.len() as f64;
-        let (a, b) = (mean(&before[..nb]), mean(&after[..na]));
-        if 2.0 * nodes[i].snr >= a + b {
-            continue;
-        }
-        // Each side's own column at this scan line: a step lies between them when they differ by more than a
-        // blend's tolerance on each side.
-        let own = |side: &[usize]| {
-            let (p, q) = (&nodes[side[0]], &nodes[side[1]]);
-            let slope = (p.x - q.x) / (f64::from(p.line) - f64::from(q.line));
-            p.x + slope * (f64::from(nodes[i].line) - f64::from(p.line))
-        };
-        let (ob, oa) = (own(&before[..nb]), own(&after[..na]));
-        let dim = if a < b { ob } else { oa };
-        if (ob - oa).abs() > 2.0 * BLEND_PX && (nodes[i].x - dim).abs() > BLEND_PX {
-            drop.push(i);
-        }
-    }
-    for i in drop {
-        keep[i] = false;
-    }
 }
 
 /// Drops the end points of kept lines that lie on a scan line the surface covers less than half of (see the module
@@ -330,36 +248,5 @@ mod tests {
         link_lines(&nodes, &LineParams::default(), &mut keep);
         assert!(!keep[0]);
         assert!(keep[1..].iter().all(|&k| k));
-    }
-
-    #[test]
-    fn a_blend_of_two_surfaces_inside_a_scan_line_is_dropped_and_a_printed_edge_is_not() {
-        // A dim stripe on a lower surface (lines 0-9, x = 30) steps onto a bright upper one (lines 11-20, x = 31.8);
-        // scan line 10 holds both, mostly the dim one, its point a blend at x = 31. Then the same levels on one
-        // surface (a printed edge): the column stays, and so does the point.
-        let line = |step: bool| -> Vec<Node> {
-            (0..21u32)
-                .map(|line| Node {
-                    line,
-                    x: match (step, line) {
-                        (false, _) => 30.0,
-                        (true, 0..=9) => 30.0,
-                        (true, 10) => 31.0,
-                        (true, _) => 31.8,
-                    },
-                    snr: match line {
-                        0..=9 => 4.0,
-                        10 => 8.0,
-                        _ => 20.0,
-                    },
-                })
-                .collect()
-        };
-        let mut keep = Vec::new();
-        link_lines(&line(true), &LineParams::default(), &mut keep);
-        assert!(!keep[10], "the blend");
-        assert_eq!(keep.iter().filter(|&&k| k).count(), 20);
-        link_lines(&line(false), &LineParams::default(), &mut keep);
-        assert!(keep.iter().all(|&k| k), "a printed edge");
     }
 }
