@@ -510,16 +510,20 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
         .expect("a frame");
     std::fs::copy(&first, one.join("frame_0000.png")).expect("copy");
     let one_out = dir.path().join("one-scan");
-    let o = stripe3d(&[
-        "scan",
-        "--sensor",
-        &sensor,
-        "--calib",
-        &calib,
-        "--out",
-        one_out.to_str().expect("utf8"),
-        one.to_str().expect("utf8"),
-    ]);
+    // `stripe3d scan` of the demo's sensor and calibration, from a folder of frames into another.
+    let scan_folder = |from: &Path, to: &Path| {
+        stripe3d(&[
+            "scan",
+            "--sensor",
+            &sensor,
+            "--calib",
+            &calib,
+            "--out",
+            to.to_str().expect("utf8"),
+            from.to_str().expect("utf8"),
+        ])
+    };
+    let o = scan_folder(&one, &one_out);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("warning: one frame"), "{}", stderr(&o));
     let json = std::fs::read_to_string(one_out.join("range.json")).expect("range.json");
@@ -563,16 +567,7 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
         std::fs::write(dark.join(format!("frame_{k}.pgm")), &pgm).expect("frame");
     }
     let dark_out = dir.path().join("dark-scan");
-    let o = stripe3d(&[
-        "scan",
-        "--sensor",
-        &sensor,
-        "--calib",
-        &calib,
-        "--out",
-        dark_out.to_str().expect("utf8"),
-        dark.to_str().expect("utf8"),
-    ]);
+    let o = scan_folder(&dark, &dark_out);
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("nothing was measured in 3 frames"),
