@@ -188,7 +188,6 @@ pub enum ScanWarning {
 /// The warnings a scan of `frames` frames with coding counts `coding` earns.
 pub fn scan_warnings(frames: usize, coding: &CodingStats) -> Vec<ScanWarning> {
     let mut out = Vec::new();
-
     if frames == 1 {
         out.push(ScanWarning::OneFrame);
     }
