@@ -325,3 +325,33 @@ pub fn range_image_corrected(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scan_warns_of_one_frame_and_of_light_no_calibrated_stripe_explains() {
+        let counts = |points, noise| CodingStats {
+            points,
+            coded: points - noise,
+            ambiguous: 0,
+            noise,
+        };
+        assert!(
+            scan_warnings(22, &counts(1000, 250)).is_empty(),
+            "a quarter is allowed"
+        );
+        assert_eq!(
+            scan_warnings(22, &counts(1000, 251)),
+            [ScanWarning::Unexplained {
+                unexplained: 251,
+                points: 1000
+            }]
+        );
+        let one = scan_warnings(1, &counts(1000, 10));
+        assert_eq!(one, [ScanWarning::OneFrame]);
+        assert!(one[0].to_string().contains("single profile"));
+        assert!(scan_warnings(5, &CodingStats::default()).is_empty());
+    }
+}
