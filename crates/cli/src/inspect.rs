@@ -20,7 +20,8 @@ use stripe3d_io::files::{prepare_dir, read_text};
 use stripe3d_io::history::{CandidateRecord, History, InspectionRecord, default_path};
 use stripe3d_io::knowledge::{kb_root_of, read_kb};
 use stripe3d_io::report::{
-    defects_picture, deviation_picture, range_travel_step, read_range, write_picture, write_report,
+    defects_picture, deviation_picture, range_travel_step, range_warnings, read_range,
+    write_picture, write_report,
 };
 use stripe3d_io::{read_calibration, read_sensor};
 use stripe3d_kb::reason::{frame_origin, part_facts, recurrence};
@@ -457,13 +458,17 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         Some(p) => Some(read_range(p).with_context(|| format!("--reference {}", p.display()))?),
         None => None,
     };
-    let (range, input, travel_step_mm) = if range_input {
+    // The scan's own warnings go into the report (and its verdict) with the inspection's; those of a scan made here
+    // were printed when it was written.
+    let (range, input, travel_step_mm, scan_warnings, printed) = if range_input {
         let r = read_range(&args.frames[0])?;
         prepare_dir(&args.out)?;
         (
             r,
             format!("range image {}", args.frames[0].display()),
             range_travel_step(&args.frames[0]),
+            range_warnings(&args.frames[0]),
+            false,
         )
     } else {
         let (Some(sensor_path), Some(calib_path)) = (&args.sensor, &args.calib) else {
@@ -512,6 +517,8 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             res.scan.range,
             format!("{} frames", frames.len()),
             travel_step(&travel),
+            res.scan.warnings.iter().map(|w| w.to_string()).collect(),
+            true,
         )
     };
     let shape = match args.shape {
@@ -547,7 +554,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         &params,
     );
     let seconds = started.elapsed().as_secs_f64();
-    let inspection = match result {
+    let mut inspection = match result {
         Ok(i) => i,
         Err(e) => {
             let message = e.to_string();
@@ -558,6 +565,11 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             );
         }
     };
+    let own_warnings = inspection.detection.warnings.len();
+    inspection
+        .detection
+        .warnings
+        .extend(scan_warnings.iter().map(|w| format!("scan: {w}")));
     let d = &inspection.detection;
     let assessment = match &ctx {
         Some(c) => {
@@ -658,7 +670,12 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             u.reason
         );
     }
-    for w in &d.warnings {
+    let unprinted = if printed {
+        own_warnings
+    } else {
+        d.warnings.len()
+    };
+    for w in &d.warnings[..unprinted] {
         eprintln!("warning: {w}");
     }
     let mut history_id = None;

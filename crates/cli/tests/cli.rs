@@ -531,6 +531,23 @@ fn demo_calibrates_scans_and_inspects_and_refuses_bad_input() {
         json.contains("one frame: the range image is a single profile"),
         "{json}"
     );
+    // Inspected, the one-frame range image's warning reaches the report and keeps the verdict from `accept`.
+    let one_report = dir.path().join("one-inspection");
+    let o = stripe3d(&[
+        "inspect",
+        "--out",
+        one_report.to_str().expect("utf8"),
+        one_out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("warning: scan: one frame"),
+        "{}",
+        stderr(&o)
+    );
+    let report = std::fs::read_to_string(one_report.join("report.json")).expect("report.json");
+    assert!(report.contains("scan: one frame"), "{report}");
+    assert!(report.contains("\"verdict\": \"incomplete\""), "{report}");
     // A calibration whose planes do not fit the frames (the lasers moved by 36 mm since): warned, naming it.
     let text = std::fs::read_to_string(&calib).expect("calib");
     let moved: String = text

@@ -23,6 +23,30 @@ pub fn read_range(path: &Path) -> Result<RangeImage, IoError> {
     range_from_json(&json_path, &text)
 }
 
+/// The warnings the scan a range image came from recorded in its `range.json` (`warnings`, see `stripe3d scan`):
+/// empty when there are none or the file does not say. `path` as for [`read_range`].
+pub fn range_warnings(path: &Path) -> Vec<String> {
+    let json_path: PathBuf = if path.is_dir() {
+        path.join("range.json")
+    } else {
+        path.to_path_buf()
+    };
+    let Some(doc) = read_text(&json_path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+    else {
+        return Vec::new();
+    };
+    doc.get("warnings")
+        .and_then(serde_json::Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(|w| w.as_str().map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
 /// The conveyor travel between frames of the scan a range image came from, mm, as its `range.json` records it
 /// (`frame_step_mm`, or the travel over the frames for files written before that field): `None` when the file does
 /// not say (a range image from elsewhere). `path` as for [`read_range`].
