@@ -460,7 +460,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
     };
     // The scan's own warnings go into the report (and its verdict) with the inspection's; those of a scan made here
     // were printed when it was written.
-    let (range, input, travel_step_mm, scan_warnings, printed) = if range_input {
+    let (range, input, travel_step_mm, scan_warnings) = if range_input {
         let r = read_range(&args.frames[0])?;
         prepare_dir(&args.out)?;
         (
@@ -468,7 +468,6 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             format!("range image {}", args.frames[0].display()),
             range_travel_step(&args.frames[0]),
             range_warnings(&args.frames[0]),
-            false,
         )
     } else {
         let (Some(sensor_path), Some(calib_path)) = (&args.sensor, &args.calib) else {
@@ -518,7 +517,6 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             format!("{} frames", frames.len()),
             travel_step(&travel),
             res.scan.warnings.iter().map(|w| w.to_string()).collect(),
-            true,
         )
     };
     let shape = match args.shape {
@@ -670,10 +668,10 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
             u.reason
         );
     }
-    let unprinted = if printed {
-        own_warnings
-    } else {
+    let unprinted = if range_input {
         d.warnings.len()
+    } else {
+        own_warnings
     };
     for w in &d.warnings[..unprinted] {
         eprintln!("warning: {w}");

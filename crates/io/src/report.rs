@@ -14,27 +14,30 @@ pub const MAX_RANGE_CELLS: usize = 64 << 20;
 
 /// Reads a range image: `path` is a `range.json` or a folder holding one (the output folder of `stripe3d scan`).
 pub fn read_range(path: &Path) -> Result<RangeImage, IoError> {
-    let json_path: PathBuf = if path.is_dir() {
+    let json_path = range_json_path(path);
+    let text = read_text(&json_path)?;
+    range_from_json(&json_path, &text)
+}
+
+/// The `range.json` that `path` names: the file itself, or the one in the folder.
+fn range_json_path(path: &Path) -> PathBuf {
+    if path.is_dir() {
         path.join("range.json")
     } else {
         path.to_path_buf()
-    };
-    let text = read_text(&json_path)?;
-    range_from_json(&json_path, &text)
+    }
+}
+
+/// The `range.json` that `path` names, parsed; `None` when it cannot be read or parsed (the fields read from it
+/// are optional extras beside the range image, which [`read_range`] reports errors for).
+fn range_doc(path: &Path) -> Option<serde_json::Value> {
+    serde_json::from_str(&read_text(&range_json_path(path)).ok()?).ok()
 }
 
 /// The warnings the scan a range image came from recorded in its `range.json` (`warnings`, see `stripe3d scan`):
 /// empty when there are none or the file does not say. `path` as for [`read_range`].
 pub fn range_warnings(path: &Path) -> Vec<String> {
-    let json_path: PathBuf = if path.is_dir() {
-        path.join("range.json")
-    } else {
-        path.to_path_buf()
-    };
-    let Some(doc) = read_text(&json_path)
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-    else {
+    let Some(doc) = range_doc(path) else {
         return Vec::new();
     };
     doc.get("warnings")
@@ -51,12 +54,7 @@ pub fn range_warnings(path: &Path) -> Vec<String> {
 /// (`frame_step_mm`, or the travel over the frames for files written before that field): `None` when the file does
 /// not say (a range image from elsewhere). `path` as for [`read_range`].
 pub fn range_travel_step(path: &Path) -> Option<f64> {
-    let json_path: PathBuf = if path.is_dir() {
-        path.join("range.json")
-    } else {
-        path.to_path_buf()
-    };
-    let doc: serde_json::Value = serde_json::from_str(&read_text(&json_path).ok()?).ok()?;
+    let doc = range_doc(path)?;
     let step = doc
         .get("frame_step_mm")
         .and_then(serde_json::Value::as_f64)

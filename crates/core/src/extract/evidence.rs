@@ -201,6 +201,18 @@ pub fn sigma_from_differences(diffs: &mut [u16]) -> f64 {
     median / HALF_NORMAL_QUANTILE / std::f64::consts::SQRT_2
 }
 
+/// Appends `diff(i)` for positions `0..n` of a line to the list of the tile (`tile` positions wide) each lies in,
+/// tile by tile, each tile's in the order of the line.
+fn gather_by_tile(tiles: &mut [Vec<u16>], tile: usize, n: usize, diff: impl Fn(usize) -> u16) {
+    for (xt, into) in tiles.iter_mut().enumerate() {
+        let (a, b) = (xt * tile, ((xt + 1) * tile).min(n));
+        if a >= b {
+            break;
+        }
+        into.extend((a..b).map(&diff));
+    }
+}
+
 /// Buffers [`NoiseMap::estimate`] reuses from frame to frame.
 #[derive(Debug, Clone, Default)]
 pub struct NoiseScratch {
@@ -265,36 +277,13 @@ impl NoiseMap {
                 smoothed(sum, detect);
                 summed_line(img, rows_axis, kb, scale, acc, sum);
                 smoothed(sum, detect_b);
-                // Tile by tile (each tile's differences in the order of the line).
                 for line in [&*detect, &*detect_b] {
                     let n = line.len().saturating_sub(NOISE_LAG);
-                    for (xt, into) in along.iter_mut().enumerate() {
-                        let (a, b) = (xt * tile, ((xt + 1) * tile).min(n));
-                        if a >= b {
-                            break;
-                        }
-                        into.extend(
-                            line[a..b]
-                                .iter()
-                                .zip(&line[a + NOISE_LAG..b + NOISE_LAG])
-                                .map(|(p, q)| p.abs_diff(*q)),
-                        );
-                    }
+                    gather_by_tile(along, tile, n, |i| line[i].abs_diff(line[i + NOISE_LAG]));
                 }
                 if kb != k {
                     let n = detect.len().min(detect_b.len());
-                    for (xt, into) in across.iter_mut().enumerate() {
-                        let (a, b) = (xt * tile, ((xt + 1) * tile).min(n));
-                        if a >= b {
-                            break;
-                        }
-                        into.extend(
-                            detect[a..b]
-                                .iter()
-                                .zip(&detect_b[a..b])
-                                .map(|(p, q)| p.abs_diff(*q)),
-                        );
-                    }
+                    gather_by_tile(across, tile, n, |i| detect[i].abs_diff(detect_b[i]));
                 }
             }
             for xt in 0..tx {
