@@ -114,7 +114,7 @@ pub fn params(
         )
     })?;
     let threshold = match threshold {
-        None => Threshold::Local,
+        None => ExtractParams::default().threshold,
         Some(t) if t.is_finite() && t >= 0.0 => Threshold::Fixed(t),
         Some(t) => bail!("--threshold {t}: give a number of grey levels, 0 or more"),
     };

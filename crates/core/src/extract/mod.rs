@@ -227,7 +227,8 @@ pub const DEFAULT_WIDTH_TOLERANCE: f64 = f64::INFINITY;
 pub struct ExtractParams {
     /// The sub-pixel estimator.
     pub method: Method,
-    /// Peak prominence threshold.
+    /// Peak prominence threshold: by default [`Threshold::Local`], the one every command and the simulator's
+    /// in-memory chain use.
     pub threshold: Threshold,
     /// Scan line direction.
     pub axis: Axis,
@@ -286,7 +287,7 @@ impl Default for ExtractParams {
     fn default() -> Self {
         Self {
             method: Method::Steger,
-            threshold: Threshold::Auto,
+            threshold: Threshold::Local,
             axis: Axis::Rows,
             policy: Policy::All,
             max_gradient_change: 2.0,
