@@ -71,3 +71,20 @@ pub enum IoError {
         message: String,
     },
 }
+
+/// Runs a third-party image decoder on the file at `path`, turning a panic inside it into [`IoError::Image`]: a
+/// damaged file must be refused, never crash the program. The `tiff` crate (0.10) indexes an empty SampleFormat
+/// tag while it reads an image's header, and no check before the decoder can see the tag; the image crate's TIFF
+/// frames go through it too.
+pub(crate) fn decode_guarded<T>(
+    path: &std::path::Path,
+    decode: impl FnOnce() -> Result<T, IoError>,
+) -> Result<T, IoError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)).unwrap_or_else(|_| {
+        Err(IoError::Image {
+            path: path.to_path_buf(),
+            message: "damaged: the decoder failed on its header or data (rewrite the file)"
+                .to_string(),
+        })
+    })
+}

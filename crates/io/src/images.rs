@@ -436,19 +436,20 @@ fn read_frame_limited(
         path: path.to_path_buf(),
         message,
     };
-    let reader = image::ImageReader::open(path)
-        .map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?
-        .with_guessed_format()
-        .map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    let (w, h) = reader
-        .into_dimensions()
-        .map_err(|e| bad(format!("not a readable PNG, JPEG, PGM or TIFF image: {e}")))?;
+    let (w, h) = crate::error::decode_guarded(path, || {
+        image::ImageReader::open(path)
+            .map_err(|source| IoError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?
+            .with_guessed_format()
+            .map_err(|source| IoError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?
+            .into_dimensions()
+            .map_err(|e| bad(format!("not a readable PNG, JPEG, PGM or TIFF image: {e}")))
+    })?;
     if w == 0 || h == 0 || w > MAX_READ_SIDE || h > MAX_READ_SIDE {
         return Err(bad(format!(
             "{w}x{h} pixels: each side must be 1 to {MAX_READ_SIDE}"
@@ -469,9 +470,11 @@ fn read_frame_limited(
             path: path.to_path_buf(),
             source,
         })?;
-    let img = reader
-        .decode()
-        .map_err(|e| bad(format!("cannot decode (truncated or damaged?): {e}")))?;
+    let img = crate::error::decode_guarded(path, || {
+        reader
+            .decode()
+            .map_err(|e| bad(format!("cannot decode (truncated or damaged?): {e}")))
+    })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     if let Some(l) = laser.filter(|l| !matches!(l, Laser::Auto | Laser::Luma))
         && !img.color().has_color()

@@ -186,24 +186,26 @@ pub(crate) fn read_layer(
         path: tiff_path.to_path_buf(),
         message: m,
     };
-    let mut dec = tiff::decoder::Decoder::new(std::io::Cursor::new(bytes))
-        .map_err(|e| bad(format!("not a TIFF: {e}")))?;
-    let (tw, th) = dec
-        .dimensions()
-        .map_err(|e| bad(format!("unreadable size: {e}")))?;
-    if (tw as usize, th as usize) != (width, height) {
-        return Err(bad(format!(
-            "{tw}x{th} cells but {} says {width}x{height}",
-            json_path.display()
-        )));
-    }
-    let v = match dec
-        .read_image()
-        .map_err(|e| bad(format!("cannot decode: {e}")))?
-    {
-        tiff::decoder::DecodingResult::F32(v) => v,
-        _ => return Err(bad(format!("must be one channel of float32 {what}"))),
-    };
+    let v = crate::error::decode_guarded(tiff_path, || {
+        let mut dec = tiff::decoder::Decoder::new(std::io::Cursor::new(bytes))
+            .map_err(|e| bad(format!("not a TIFF: {e}")))?;
+        let (tw, th) = dec
+            .dimensions()
+            .map_err(|e| bad(format!("unreadable size: {e}")))?;
+        if (tw as usize, th as usize) != (width, height) {
+            return Err(bad(format!(
+                "{tw}x{th} cells but {} says {width}x{height}",
+                json_path.display()
+            )));
+        }
+        match dec
+            .read_image()
+            .map_err(|e| bad(format!("cannot decode: {e}")))?
+        {
+            tiff::decoder::DecodingResult::F32(v) => Ok(v),
+            _ => Err(bad(format!("must be one channel of float32 {what}"))),
+        }
+    })?;
     if v.len() != width * height {
         return Err(bad(format!(
             "{} samples for {width}x{height} cells: one float32 channel is expected",
