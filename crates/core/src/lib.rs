@@ -15,10 +15,8 @@
 
 pub mod accumulate;
 pub mod calibrate;
-pub mod characterize;
 pub mod code;
 pub mod curvature;
-pub mod detect;
 pub mod error;
 pub mod extract;
 pub mod image;
@@ -26,6 +24,7 @@ pub mod rules;
 pub mod scan;
 pub mod sensor;
 pub mod spacetime;
+pub mod surface;
 pub mod triangulate;
 
 /// A seeded xorshift generator for the unit tests' random lines: reproducible, no dependency.
@@ -43,3 +42,4 @@ pub(crate) fn test_rng(seed: u32) -> impl FnMut() -> u32 {
 pub use error::CoreError;
 pub use image::{Image, ImageView, Pixel};
 pub use sensor::{Camera, Conveyor, Laser, LaserPlane, Sensor};
+pub use surface::{characterize, detect};
