@@ -352,7 +352,7 @@ fn parse_range(s: &str) -> Result<(f64, f64)> {
 /// Travel (mm since frame 0) of each of `n` frames.
 pub fn travels(sensor: &Sensor, encoder: Option<&Path>, n: usize) -> Result<Vec<f64>> {
     if let Some(enc) = encoder {
-        let t = crate::simulate::read_encoder(enc)?;
+        let t = stripe3d_io::encoder::read_encoder(enc, stripe3d_io::encoder::MAX_POSITIONS)?;
         if t.len() != n {
             bail!(
                 "{}: {} positions for {n} frames; give one position per frame",

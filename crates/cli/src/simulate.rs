@@ -8,6 +8,7 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use stripe3d_core::Sensor;
+use stripe3d_io::encoder::read_encoder;
 use stripe3d_io::files::{prepare_dir, read_text};
 use stripe3d_io::images::write_grey_png;
 use stripe3d_io::truth::{STRIPES_CSV_HEADER, append_stripes_csv, write_defects, write_height_map};
@@ -74,57 +75,9 @@ pub(crate) fn load_scene(name: &str) -> Result<Scene> {
     Ok(read_scene(path)?)
 }
 
-/// Reads an encoder file: one position (mm) per line, `#` comments and blank lines allowed, non-decreasing.
-pub(crate) fn read_encoder(path: &Path) -> Result<Vec<f64>> {
-    let text = read_text(path)?;
-    let mut out: Vec<f64> = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let t = line.split('#').next().unwrap_or("").trim();
-        if t.is_empty() {
-            continue;
-        }
-        let v: f64 = t
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite())
-            .with_context(|| {
-                format!(
-                    "{}:{}: {t:?} is not a position in mm (one finite number per line)",
-                    path.display(),
-                    n + 1
-                )
-            })?;
-        if let Some(&last) = out.last() {
-            if v < last {
-                bail!(
-                    "{}:{}: position {v} mm is behind the previous {last} mm; encoder positions must not decrease",
-                    path.display(),
-                    n + 1
-                );
-            }
-        }
-        out.push(v);
-    }
-    if out.is_empty() {
-        bail!(
-            "{}: no positions; write one position in mm per frame, one per line",
-            path.display()
-        );
-    }
-    if out.len() > MAX_FRAMES {
-        bail!(
-            "{}: {} positions is more than the {MAX_FRAMES} frames one run renders",
-            path.display(),
-            out.len()
-        );
-    }
-    let first = out[0];
-    Ok(out.into_iter().map(|v| v - first).collect())
-}
-
 fn travels(args: &SimulateArgs, sensor: &Sensor) -> Result<Vec<f64>> {
     if let Some(enc) = &args.encoder {
-        return read_encoder(enc);
+        return Ok(read_encoder(enc, MAX_FRAMES)?);
     }
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
     let step = conveyor.speed_mm_s / conveyor.fps;
@@ -577,32 +530,4 @@ fn extract_demo(out: &Path, sim_dir: &Path, frames: usize) -> Result<()> {
     );
     say!("wrote {}", dir.join("points.csv").display());
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    proptest::proptest! {
-        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
-
-        /// Any text: positions that are finite, non-decreasing and within the frame limit, or an error that
-        /// names the file.
-        #[test]
-        fn encoder_files_are_read_or_refused_by_name(
-            text in "([-+0-9.eE#a-z ]{0,12}\\n){0,20}|\\PC{0,100}",
-        ) {
-            let dir = tempfile::tempdir().expect("tmp");
-            let p = dir.path().join("enc.txt");
-            std::fs::write(&p, &text).expect("write");
-            match read_encoder(&p) {
-                Ok(v) => {
-                    proptest::prop_assert!(!v.is_empty() && v.len() <= MAX_FRAMES);
-                    proptest::prop_assert!(v.iter().all(|x| x.is_finite()));
-                    proptest::prop_assert!(v.windows(2).all(|w| w[0] <= w[1]));
-                }
-                Err(e) => proptest::prop_assert!(format!("{e:#}").contains("enc.txt"), "{e:#}"),
-            }
-        }
-    }
 }

@@ -107,10 +107,202 @@ impl Calibration {
     }
 }
 
-fn fail(message: impl Into<String>) -> CoreError {
-    CoreError::Calibration {
-        message: message.into(),
+/// Why calibration refused its plate images, with what it found; each message names the image and what to do.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrationError {
+    /// Fewer than three plate images.
+    #[error(
+        "{given} plate image(s) given; calibration needs plates at three heights at least (--plane HEIGHT_MM:IMAGE, \
+         repeated)"
+    )]
+    TooFewPlates {
+        /// Images given.
+        given: usize,
+    },
+    /// A plate's height is not between the belt and the camera.
+    #[error(
+        "{image}: height {height_mm} mm is not between the belt (0) and the camera ({camera_mm} mm)"
+    )]
+    HeightOutOfRange {
+        /// The image.
+        image: String,
+        /// Its height label, mm.
+        height_mm: f64,
+        /// The camera's height above the belt, mm.
+        camera_mm: f64,
+    },
+    /// Two images carry the same height.
+    #[error("{first} and {second} are both labelled {height_mm} mm; give each height once")]
+    SameHeight {
+        /// One image.
+        first: String,
+        /// The other.
+        second: String,
+        /// Their height, mm.
+        height_mm: f64,
+    },
+    /// No stripe in an image.
+    #[error("{image}: no stripe found; is the plate lit and in view?")]
+    NoStripe {
+        /// The image.
+        image: String,
+    },
+    /// More stripe lines in an image than the sensor has stripes.
+    #[error(
+        "{image}: {lines} stripe lines found but the sensor has {stripes} stripes (reflections or a plate that is not \
+         flat?)"
+    )]
+    TooManyLines {
+        /// The image.
+        image: String,
+        /// Lines found.
+        lines: usize,
+        /// The sensor's stripes.
+        stripes: usize,
+    },
+    /// No image's stripes match the nominal geometry.
+    #[error("no image could be matched to the sensor's stripes")]
+    NoImageMatched,
+    /// An image's stripes cannot be matched to those of the image next to it in height.
+    #[error("{image}: its stripes cannot be matched to those at {from_mm} mm")]
+    Unmatched {
+        /// The image.
+        image: String,
+        /// The height of the image it was matched from, mm.
+        from_mm: f64,
+    },
+    /// An image's stripes are not where the image next to it in height puts them.
+    #[error(
+        "{image} ({height_mm} mm): its stripes do not follow from the image at {from_mm} mm (they are {error_px:.1} px \
+         from where the heights say they should be); are the heights right and the images in the right order?"
+    )]
+    DoesNotFollow {
+        /// The image.
+        image: String,
+        /// Its height label, mm.
+        height_mm: f64,
+        /// The height of the image it was matched from, mm.
+        from_mm: f64,
+        /// How far its stripes are from where they should be, px.
+        error_px: f64,
+    },
+    /// A stripe moves against the others between two heights.
+    #[error(
+        "stripe {stripe} moves the wrong way between {first} ({first_mm} mm) and {second} ({second_mm} mm): were these \
+         images swapped?"
+    )]
+    WrongWay {
+        /// The stripe.
+        stripe: usize,
+        /// The lower image.
+        first: String,
+        /// Its height, mm.
+        first_mm: f64,
+        /// The higher image.
+        second: String,
+        /// Its height, mm.
+        second_mm: f64,
+    },
+    /// A stripe is seen at fewer than three heights.
+    #[error(
+        "stripe {stripe} is seen at {} height(s) ({}); it needs three: add plate images at heights where it is in view",
+        seen_mm.len(),
+        heights_list(seen_mm)
+    )]
+    TooFewHeights {
+        /// The stripe.
+        stripe: usize,
+        /// The heights it is seen at, mm.
+        seen_mm: Vec<f64>,
+    },
+    /// A stripe's points do not define a plane.
+    #[error("stripe {stripe}: its points do not define a plane")]
+    NoPlane {
+        /// The stripe.
+        stripe: usize,
+    },
+    /// One image's stripes lie off the planes the other images define.
+    #[error(
+        "{image} (labelled {height_mm} mm) does not fit the other images: its stripes sit {rms_mm:.3} mm RMS off the \
+         planes the others define (limit {limit_mm} mm); check its height label, or whether images were swapped"
+    )]
+    ImageOffPlanes {
+        /// The image.
+        image: String,
+        /// Its height label, mm.
+        height_mm: f64,
+        /// Its RMS distance from the others' planes, mm.
+        rms_mm: f64,
+        /// The limit, mm.
+        limit_mm: f64,
+    },
+    /// The images do not fit one set of planes, and no single image is to blame.
+    #[error(
+        "the images do not fit one set of stripe planes: {image} (labelled {height_mm} mm) is {rms_mm:.3} mm RMS off \
+         (limit {limit_mm} mm); a height label is wrong or images were swapped (with four heights or more the image \
+         at fault is named)"
+    )]
+    NoCommonPlanes {
+        /// The image furthest off.
+        image: String,
+        /// Its height label, mm.
+        height_mm: f64,
+        /// Its RMS distance, mm.
+        rms_mm: f64,
+        /// The limit, mm.
+        limit_mm: f64,
+    },
+    /// The paper's linear model could not be fitted to a stripe.
+    #[error("stripe {stripe}: linear model fit failed: {reason}")]
+    LinearFit {
+        /// The stripe.
+        stripe: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A calibration made for another image size.
+    #[error(
+        "the calibration was made for {}x{} images but the sensor has {}x{}; calibrate this sensor",
+        calibrated[0],
+        calibrated[1],
+        sensor[0],
+        sensor[1]
+    )]
+    ImageSize {
+        /// The calibrated camera's width and height, px.
+        calibrated: [usize; 2],
+        /// The sensor's, px.
+        sensor: [usize; 2],
+    },
+    /// A calibration made with another camera.
+    #[error(
+        "the calibration was made with camera.{field} = {calibrated} but the sensor has {sensor}; calibrate this sensor"
+    )]
+    CameraDiffers {
+        /// The camera field, e.g. `fx`.
+        field: &'static str,
+        /// The calibrated value.
+        calibrated: f64,
+        /// The sensor's.
+        sensor: f64,
+    },
+}
+
+/// "none", or the heights as "5 mm, 10 mm".
+fn heights_list(heights: &[f64]) -> String {
+    if heights.is_empty() {
+        "none".to_string()
+    } else {
+        heights
+            .iter()
+            .map(|h| format!("{h} mm"))
+            .collect::<Vec<_>>()
+            .join(", ")
     }
+}
+
+fn fail(e: CalibrationError) -> CoreError {
+    CoreError::Calibration(e)
 }
 
 /// One calibration sample of a stripe: (image index in height order, u, v, world point).
@@ -293,21 +485,20 @@ pub fn calibrate(
 ) -> Result<Calibration, CoreError> {
     sensor.validate()?;
     if images.len() < 3 {
-        return Err(fail(format!(
-            "{} plate image(s) given; calibration needs plates at three heights at least (--plane HEIGHT_MM:IMAGE, \
-             repeated)",
-            images.len()
-        )));
+        return Err(fail(CalibrationError::TooFewPlates {
+            given: images.len(),
+        }));
     }
     for im in images {
         if !im.height_mm.is_finite()
             || im.height_mm < 0.0
             || im.height_mm >= sensor.camera.height_mm
         {
-            return Err(fail(format!(
-                "{}: height {} mm is not between the belt (0) and the camera ({} mm)",
-                im.name, im.height_mm, sensor.camera.height_mm
-            )));
+            return Err(fail(CalibrationError::HeightOutOfRange {
+                image: im.name.clone(),
+                height_mm: im.height_mm,
+                camera_mm: sensor.camera.height_mm,
+            }));
         }
     }
     let mut order: Vec<usize> = (0..images.len()).collect();
@@ -315,10 +506,11 @@ pub fn calibrate(
     for w in order.windows(2) {
         let (a, b) = (&images[w[0]], &images[w[1]]);
         if (b.height_mm - a.height_mm).abs() < 1e-9 {
-            return Err(fail(format!(
-                "{} and {} are both labelled {} mm; give each height once",
-                a.name, b.name, a.height_mm
-            )));
+            return Err(fail(CalibrationError::SameHeight {
+                first: a.name.clone(),
+                second: b.name.clone(),
+                height_mm: a.height_mm,
+            }));
         }
     }
     let n = sensor.laser.stripes;
@@ -331,17 +523,16 @@ pub fn calibrate(
         .collect();
     for (k, &i) in order.iter().enumerate() {
         if lines[k].is_empty() {
-            return Err(fail(format!(
-                "{}: no stripe found; is the plate lit and in view?",
-                images[i].name
-            )));
+            return Err(fail(CalibrationError::NoStripe {
+                image: images[i].name.clone(),
+            }));
         }
         if lines[k].len() > n {
-            return Err(fail(format!(
-                "{}: {} stripe lines found but the sensor has {n} stripes (reflections or a plate that is not flat?)",
-                images[i].name,
-                lines[k].len()
-            )));
+            return Err(fail(CalibrationError::TooManyLines {
+                image: images[i].name.clone(),
+                lines: lines[k].len(),
+                stripes: n,
+            }));
         }
     }
     // Anchor: the image identified most clearly by the nominal geometry.
@@ -365,7 +556,7 @@ pub fn calibrate(
         }
     }
     let Some((a, first_a, _)) = anchor else {
-        return Err(fail("no image could be matched to the sensor's stripes"));
+        return Err(fail(CalibrationError::NoImageMatched));
     };
     let mut firsts: Vec<Option<usize>> = vec![None; order.len()];
     firsts[a] = Some(first_a);
@@ -386,17 +577,18 @@ pub fn calibrate(
                 - nominal_column(&nominal, s, row, zf)
         });
         let Some((first, err, second)) = fit else {
-            return Err(fail(format!(
-                "{}: its stripes cannot be matched to those at {} mm",
-                images[order[to]].name, zf
-            )));
+            return Err(fail(CalibrationError::Unmatched {
+                image: images[order[to]].name.clone(),
+                from_mm: zf,
+            }));
         };
         if err > 0.25 * pitch_px || second < 2.0 * err {
-            return Err(fail(format!(
-                "{} ({} mm): its stripes do not follow from the image at {} mm (they are {:.1} px from where the \
-                 heights say they should be); are the heights right and the images in the right order?",
-                images[order[to]].name, zt, zf, err
-            )));
+            return Err(fail(CalibrationError::DoesNotFollow {
+                image: images[order[to]].name.clone(),
+                height_mm: zt,
+                from_mm: zf,
+                error_px: err,
+            }));
         }
         firsts[to] = Some(first);
     }
@@ -416,13 +608,13 @@ pub fn calibrate(
         for w in cols.windows(2) {
             let d = (w[1].1 - w[0].1).signum();
             if d != nominal_dir && (w[1].1 - w[0].1).abs() > 0.5 {
-                return Err(fail(format!(
-                    "stripe {s} moves the wrong way between {} ({} mm) and {} ({} mm): were these images swapped?",
-                    images[order[w[0].0]].name,
-                    heights[w[0].0],
-                    images[order[w[1].0]].name,
-                    heights[w[1].0]
-                )));
+                return Err(fail(CalibrationError::WrongWay {
+                    stripe: s,
+                    first: images[order[w[0].0]].name.clone(),
+                    first_mm: heights[w[0].0],
+                    second: images[order[w[1].0]].name.clone(),
+                    second_mm: heights[w[1].0],
+                }));
             }
         }
     }
@@ -457,20 +649,13 @@ pub fn calibrate(
             seen.sort_unstable();
             seen.dedup();
             if seen.len() < 3 {
-                let at: Vec<String> = seen.iter().map(|&k| format!("{} mm", heights[k])).collect();
-                return Err(fail(format!(
-                    "stripe {s} is seen at {} height(s) ({}); it needs three: add plate images at heights where it is \
-                     in view",
-                    seen.len(),
-                    if at.is_empty() {
-                        "none".to_string()
-                    } else {
-                        at.join(", ")
-                    }
-                )));
+                return Err(fail(CalibrationError::TooFewHeights {
+                    stripe: s,
+                    seen_mm: seen.iter().map(|&k| heights[k]).collect(),
+                }));
             }
-            let (plane, _) = fit_plane(&used)
-                .ok_or_else(|| fail(format!("stripe {s}: its points do not define a plane")))?;
+            let (plane, _) =
+                fit_plane(&used).ok_or_else(|| fail(CalibrationError::NoPlane { stripe: s }))?;
             planes.push(plane);
         }
         Ok(planes)
@@ -522,17 +707,18 @@ pub fn calibrate(
             None
         };
         return Err(match culprit {
-            Some((j, rj)) => fail(format!(
-                "{} (labelled {} mm) does not fit the other images: its stripes sit {:.3} mm RMS off the planes the \
-                 others define (limit {} mm); check its height label, or whether images were swapped",
-                images[order[j]].name, heights[j], rj, params.max_residual_mm
-            )),
-            None => fail(format!(
-                "the images do not fit one set of stripe planes: {} (labelled {} mm) is {:.3} mm RMS off (limit {} \
-                 mm); a height label is wrong or images were swapped (with four heights or more the image at fault \
-                 is named)",
-                images[order[k]].name, heights[k], r, params.max_residual_mm
-            )),
+            Some((j, rj)) => fail(CalibrationError::ImageOffPlanes {
+                image: images[order[j]].name.clone(),
+                height_mm: heights[j],
+                rms_mm: rj,
+                limit_mm: params.max_residual_mm,
+            }),
+            None => fail(CalibrationError::NoCommonPlanes {
+                image: images[order[k]].name.clone(),
+                height_mm: heights[k],
+                rms_mm: r,
+                limit_mm: params.max_residual_mm,
+            }),
         });
     }
     // The linear model: height = A(r) - B(r) u, quadratics in r, by least squares per stripe.
@@ -551,10 +737,12 @@ pub fn calibrate(
             }
             b[i] = heights[p.0];
         }
-        let x = a
-            .svd(true, true)
-            .solve(&b, 1e-12)
-            .map_err(|e| fail(format!("stripe {s}: linear model fit failed: {e}")))?;
+        let x = a.svd(true, true).solve(&b, 1e-12).map_err(|e| {
+            fail(CalibrationError::LinearFit {
+                stripe: s,
+                reason: e.to_string(),
+            })
+        })?;
         let stripe = LinearStripe {
             a: [x[0], x[1], x[2]],
             b: [x[3], x[4], x[5]],
@@ -597,10 +785,10 @@ pub fn calibrate(
 /// The camera a calibration was made with must be the one in use: same image size and intrinsics.
 pub fn check_camera(calibrated: &Camera, sensor: &Camera) -> Result<(), CoreError> {
     if calibrated.width != sensor.width || calibrated.height != sensor.height {
-        return Err(fail(format!(
-            "the calibration was made for {}x{} images but the sensor has {}x{}; calibrate this sensor",
-            calibrated.width, calibrated.height, sensor.width, sensor.height
-        )));
+        return Err(fail(CalibrationError::ImageSize {
+            calibrated: [calibrated.width as usize, calibrated.height as usize],
+            sensor: [sensor.width as usize, sensor.height as usize],
+        }));
     }
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * (1.0 + a.abs().max(b.abs()));
     for (name, a, b) in [
@@ -612,9 +800,11 @@ pub fn check_camera(calibrated: &Camera, sensor: &Camera) -> Result<(), CoreErro
         ("height_mm", calibrated.height_mm, sensor.height_mm),
     ] {
         if !close(a, b) {
-            return Err(fail(format!(
-                "the calibration was made with camera.{name} = {a} but the sensor has {b}; calibrate this sensor"
-            )));
+            return Err(fail(CalibrationError::CameraDiffers {
+                field: name,
+                calibrated: a,
+                sensor: b,
+            }));
         }
     }
     Ok(())

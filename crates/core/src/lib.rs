@@ -39,7 +39,7 @@ pub(crate) fn test_rng(seed: u32) -> impl FnMut() -> u32 {
     }
 }
 
-pub use error::CoreError;
+pub use error::{CoreError, InspectionError};
 pub use image::{Image, ImageView, Pixel};
 pub use sensor::{Camera, Conveyor, Laser, LaserPlane, Sensor};
 pub use surface::{characterize, detect};

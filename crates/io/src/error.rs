@@ -34,6 +34,16 @@ pub enum IoError {
         /// What is wrong there.
         message: String,
     },
+    /// An encoder file (one conveyor position per frame) is malformed.
+    #[error("{path}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+    Encoder {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line, when one is at fault.
+        line: Option<usize>,
+        /// What is wrong and what to write.
+        message: String,
+    },
     /// A field holds a value that is well-formed but impossible.
     #[error("{path}{}: {field}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
     Invalid {

@@ -12,6 +12,7 @@
 pub mod calib;
 pub mod cloud;
 pub mod config;
+pub mod encoder;
 pub mod error;
 pub mod files;
 pub mod history;

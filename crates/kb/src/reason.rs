@@ -24,12 +24,12 @@ use crate::model::{
     Decision, FeatureKind, KnowledgeBase, Measure, Method, Process, Product, ReferenceKind,
 };
 use serde::Serialize;
-use stripe3d_core::CoreError;
 use stripe3d_core::accumulate::RangeImage;
 use stripe3d_core::characterize::{
     CellClass, CharacterizeParams, ReferenceInfo, ReferenceShape, ReferenceSource, cell_xy,
 };
 use stripe3d_core::detect::{Defect, DefectKind, Detection, Inspection, SurfaceRules, inspect};
+use stripe3d_core::{CoreError, InspectionError};
 
 /// Distance (mm) within which a defect on another part counts as recurring at the same place.
 pub const RECURRENCE_RADIUS_MM: f64 = 2.0;
@@ -600,12 +600,9 @@ pub fn inspect_with(
         (_, Some(g)) => ReferenceSource::Golden(g),
         (Some(shape), None) => ReferenceSource::Fit(shape),
         (None, None) => {
-            return Err(CoreError::Inspection {
-                message: format!(
-                    "method `{}` compares parts with a golden scan: give one (inspect --reference DIR)",
-                    method.name
-                ),
-            });
+            return Err(CoreError::Inspection(InspectionError::GoldenNeeded {
+                method: method.name.clone(),
+            }));
         }
     };
     inspect(

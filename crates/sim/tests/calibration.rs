@@ -1,6 +1,7 @@
 //! Calibration from simulated plate images, checked against the simulator's true laser sheets.
 
-use stripe3d_core::calibrate::{CalibrationParams, PlaneImage, calibrate};
+use stripe3d_core::CoreError;
+use stripe3d_core::calibrate::{CalibrationError, CalibrationParams, PlaneImage, calibrate};
 use stripe3d_core::extract::{ExtractParams, Extractor, Method};
 use stripe3d_core::{Image, Sensor};
 use stripe3d_sim::{RenderOptions, Scene, Simulator};
@@ -88,10 +89,18 @@ fn too_few_heights_duplicates_and_mislabelled_images_are_refused() {
     let p = CalibrationParams::default();
     let imgs = images(&sensor, &[0.0, 4.0, 8.0, 12.0]);
     let err = calibrate(&sensor, &imgs[..2], &p).expect_err("two heights");
+    assert_eq!(
+        err,
+        CoreError::Calibration(CalibrationError::TooFewPlates { given: 2 })
+    );
     assert!(err.to_string().contains("three heights"), "{err}");
     let mut dup = imgs[..3].to_vec();
     dup[2].height_mm = 4.0;
     let err = calibrate(&sensor, &dup, &p).expect_err("duplicate");
+    assert!(
+        matches!(&err, CoreError::Calibration(CalibrationError::SameHeight { height_mm, .. }) if *height_mm == 4.0),
+        "{err:?}"
+    );
     assert!(err.to_string().contains("both labelled"), "{err}");
     // Two images swapped.
     let mut swapped = imgs.clone();
@@ -105,6 +114,11 @@ fn too_few_heights_duplicates_and_mislabelled_images_are_refused() {
     let err = calibrate(&sensor, &wrong, &p).expect_err("mislabelled");
     eprintln!("mislabelled: {err}");
     assert!(err.to_string().contains("plate-8mm.png"), "{err}");
+    assert!(
+        matches!(&err, CoreError::Calibration(CalibrationError::ImageOffPlanes { image, height_mm, .. })
+            if image == "plate-8mm.png" && *height_mm == 8.5),
+        "{err:?}"
+    );
 }
 
 #[test]

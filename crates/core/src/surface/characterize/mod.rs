@@ -14,6 +14,7 @@
 
 use crate::CoreError;
 use crate::accumulate::{RangeImage, floor_index, index_f64};
+use crate::error::InspectionError;
 use nalgebra::{DMatrix, DVector};
 
 mod register;
@@ -254,15 +255,11 @@ pub fn fit_reference(
         ReferenceShape::Quadratic => 6,
     };
     if part.len() < needed.max(20) {
-        return Err(CoreError::Inspection {
-            message: format!(
-                "the range image shows no part: {} of {} cells are above the belt level of {} mm (at least 20 are \
-                 needed to fit a reference surface); check that the part was in view and that the scan worked",
-                part.len(),
-                range.z.len(),
-                params.belt_level_mm
-            ),
-        });
+        return Err(CoreError::Inspection(InspectionError::TooFewPartCells {
+            part_cells: part.len(),
+            cells: range.z.len(),
+            belt_level_mm: params.belt_level_mm,
+        }));
     }
     let stride = part.len().div_ceil(params.max_fit_cells).max(1);
     let sample: Vec<(f64, f64, f64)> = part
@@ -362,9 +359,7 @@ pub fn fit_reference(
     let lim = 3.0 * r.sigma_mm.max(0.002);
     r.inlier_share = resid.iter().filter(|&&e| e <= lim).count() as f64 / n;
     if !r.coefficients.iter().all(|c| c.is_finite()) {
-        return Err(CoreError::Inspection {
-            message: "the reference surface fit did not converge (degenerate part shape)".into(),
-        });
+        return Err(CoreError::Inspection(InspectionError::ReferenceDiverged));
     }
     Ok(r)
 }
@@ -426,11 +421,12 @@ impl PreparedGolden {
         belt_level_mm: f64,
         travel_step_mm: Option<f64>,
     ) -> Result<(), CoreError> {
-        let differs = |what: &str, prepared: String, asked: String| CoreError::Inspection {
-            message: format!(
-                "the golden scan was prepared with {what} {prepared} but the inspection uses {asked}: prepare it \
-                 with the inspection's parameters"
-            ),
+        let differs = |what: &'static str, prepared: String, asked: String| {
+            CoreError::Inspection(InspectionError::GoldenPreparedOtherwise {
+                what,
+                prepared,
+                asked,
+            })
         };
         if self.outlier_mm.to_bits() != outlier_mm.to_bits() {
             return Err(differs(

@@ -538,13 +538,12 @@ pub fn register(
     let (count, centre) = centroid(scan);
     let (golden_part, gcentre) = centroid(golden);
     if count < 20 || golden_part < 20 {
-        return Err(CoreError::Inspection {
-            message: format!(
-                "cannot register to the golden scan: the scan shows {} part cells and the golden scan {} (at least 20 \
-                 each are needed)",
-                count, golden_part
-            ),
-        });
+        return Err(CoreError::Inspection(
+            InspectionError::TooFewCellsToRegister {
+                scan_cells: count,
+                golden_cells: golden_part,
+            },
+        ));
     }
     // The samples as offsets from the centre of rotation, which every candidate shares.
     let from_centre = |(i, j, z)| {
@@ -617,16 +616,12 @@ pub fn register(
     best.overlap = overlap;
     best.mean_difference_mm = cost;
     if overlap < params.min_overlap {
-        return Err(CoreError::Inspection {
-            message: format!(
-                "the golden scan does not overlap this scan: only {:.0}% of the part lands on the golden part after \
-                 the best shift of ({:.1}, {:.1}) mm (at least {:.0}% needed); is it a scan of the same product?",
-                100.0 * overlap,
-                best.dx_mm,
-                best.dy_mm,
-                100.0 * params.min_overlap
-            ),
-        });
+        return Err(CoreError::Inspection(InspectionError::NoOverlap {
+            overlap,
+            dx_mm: best.dx_mm,
+            dy_mm: best.dy_mm,
+            needed: params.min_overlap,
+        }));
     }
     Ok(best)
 }

@@ -23,6 +23,7 @@ use crate::characterize::{
     CellClass, CharacterizeParams, PreparedGolden, ReferenceInfo, ReferenceSource, SurfaceMaps,
     cell_xy, geometry_at, median, reference_heights, remove_outliers, surface_maps,
 };
+use crate::error::InspectionError;
 use crate::rules::RuleBase;
 use stripe3d_fuzzy::Engine;
 
@@ -363,11 +364,7 @@ pub fn detect(
     let closed = closing(w, h, &is_part, 2);
     let (plabel, psizes) = components(w, h, |k| closed[k], true);
     let Some(&main_size) = psizes.iter().skip(1).max() else {
-        return Err(CoreError::Inspection {
-            message:
-                "the range image shows no part (nothing above the belt): nothing can be inspected"
-                    .into(),
-        });
+        return Err(CoreError::Inspection(InspectionError::NoPart));
     };
     // Every large piece is the part: a seam wider than the closing must not leave half the part uninspected.
     let min_piece = (main_size / 20)
@@ -387,12 +384,9 @@ pub fn detect(
     let on_part = |k: usize| opened[k];
     out.part_cells = opened.iter().filter(|&&p| p).count();
     if (main_size as f64) * cell_area < 4.0 {
-        return Err(CoreError::Inspection {
-            message: format!(
-                "the part shows only {:.1} mm² of surface: too little to inspect (check the scan)",
-                main_size as f64 * cell_area
-            ),
-        });
+        return Err(CoreError::Inspection(InspectionError::TooLittleSurface {
+            area_mm2: main_size as f64 * cell_area,
+        }));
     }
     // The part running out of the measured area.
     // Only the two outermost rows and columns can touch.
@@ -1004,21 +998,14 @@ pub fn inspect(
     params: &DetectParams,
 ) -> Result<Inspection, CoreError> {
     if range.width == 0 || range.height == 0 || range.z.len() != range.width * range.height {
-        return Err(CoreError::Inspection {
-            message: format!(
-                "the range image is empty or inconsistent ({}x{} cells, {} values)",
-                range.width,
-                range.height,
-                range.z.len()
-            ),
-        });
+        return Err(CoreError::Inspection(InspectionError::InconsistentRange {
+            width: range.width,
+            height: range.height,
+            values: range.z.len(),
+        }));
     }
     if range.measured() == 0 {
-        return Err(CoreError::Inspection {
-            message:
-                "the range image holds no measurement at all (every cell is NaN): nothing was seen"
-                    .into(),
-        });
+        return Err(CoreError::Inspection(InspectionError::NoMeasurement));
     }
     let mut cleaned = range.clone();
     let outliers = remove_outliers(&mut cleaned, params.outlier_mm);

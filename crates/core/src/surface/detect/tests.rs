@@ -339,6 +339,13 @@ fn a_prepared_golden_scan_inspects_as_the_golden_scan_and_refuses_other_paramete
             &params,
         )
         .expect_err("other parameters");
+        assert!(
+            matches!(
+                &e,
+                CoreError::Inspection(InspectionError::GoldenPreparedOtherwise { .. })
+            ),
+            "{e:?}"
+        );
         assert!(e.to_string().contains(what), "{e}");
     }
 }
@@ -636,10 +643,18 @@ fn empty_scans_and_parts_out_of_view_are_reported() {
         intensity: None,
     };
     let p = CharacterizeParams::default();
-    assert!(fit_reference(&empty, &p).is_err());
+    assert!(matches!(
+        fit_reference(&empty, &p),
+        Err(CoreError::Inspection(InspectionError::TooFewPartCells {
+            part_cells: 0,
+            cells: 100,
+            ..
+        }))
+    ));
     let maps = surface_maps(&empty, vec![0.0; 100], &p).expect("maps");
     let mut rules = SurfaceRules::shipped().expect("rules");
     let e = detect(&empty, &maps, &mut rules, &DetectParams::default()).expect_err("no part");
+    assert_eq!(e, CoreError::Inspection(InspectionError::NoPart));
     assert!(e.to_string().contains("no part"), "{e}");
     // A plate running off the top of the grid.
     let mut r = plate(|_, _| Some(0.0));
