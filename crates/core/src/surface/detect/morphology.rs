@@ -85,7 +85,7 @@ pub(super) const MIN_PIECE_MM2: f64 = 25.0;
 /// millimetre of the gap.
 pub const HOLE_WALL_MARGIN_MM: f64 = 1.0;
 /// Half-width (cells) of the thickest channel of missing data that cannot join a hole to the outside or to another
-/// gap ([`detect`], step 3): 2 cells, so channels up to 4 cells (0.9 mm at the default grid, about two frames of
+/// gap ([`super::detect`], step 3): 2 cells, so channels up to 4 cells (0.9 mm at the default grid, about two frames of
 /// travel) wide.
 pub const GAP_CHANNEL_CELLS: usize = 2;
 
