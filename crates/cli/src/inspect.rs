@@ -7,21 +7,20 @@ use crate::scan::{
 };
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
-use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use stripe3d_core::accumulate::{ModelKind, RangeImage};
 use stripe3d_core::calibrate::check_camera;
-use stripe3d_core::characterize::{
-    CharacterizeParams, ReferenceInfo, ReferenceShape, ReferenceSource,
-};
+use stripe3d_core::characterize::{CharacterizeParams, ReferenceShape, ReferenceSource};
 use stripe3d_core::detect::{DetectParams, Detection, Inspection, SurfaceRules, inspect};
 use stripe3d_io::files::{prepare_dir, read_text};
 use stripe3d_io::history::{CandidateRecord, History, InspectionRecord, default_path};
 use stripe3d_io::knowledge::{kb_root_of, read_kb};
 use stripe3d_io::report::{
-    defects_picture, deviation_picture, range_travel_step, range_warnings, read_range,
-    write_picture, write_report,
+    REPORT_FORMAT, REPORT_VERSION, Report, ReportDefect, ReportDetectable, ReportKnowledgeBase,
+    ReportPictures, ReportRange, ReportReference, ReportSurface, ReportUnmeasured, defects_picture,
+    deviation_picture, generator, range_travel_step, range_warnings, read_range, write_picture,
+    write_report,
 };
 use stripe3d_io::{read_calibration, read_sensor};
 use stripe3d_kb::reason::{frame_origin, part_facts, recurrence};
@@ -144,54 +143,6 @@ pub fn verdict(d: &Detection) -> (&'static str, String) {
     }
 }
 
-fn defect_json(n: usize, d: &stripe3d_core::detect::Defect) -> Value {
-    let e = &d.evidence;
-    json!({
-        "id": n + 1,
-        "kind": d.kind.name(),
-        "x_mm": d.centroid_mm[0],
-        "y_mm": d.centroid_mm[1],
-        "area_mm2": d.area_mm2,
-        "depth_mm": d.depth_mm,
-        "volume_mm3": d.volume_mm3,
-        "bbox_mm": d.bbox_mm,
-        "confidence": d.confidence,
-        "bottom_seen": d.bottom_seen,
-        "evidence": {
-            "curvature_per_mm": e.curvature_per_mm,
-            "direction": e.direction,
-            "gap_mm": e.gap_mm,
-            "height_similarity_mm": e.height_similarity_mm,
-            "elongation": e.elongation,
-            "edge_notch_mm": e.edge_notch_mm,
-            "cells": e.cells,
-        },
-    })
-}
-
-fn reference_json(r: &ReferenceInfo) -> Value {
-    match r {
-        ReferenceInfo::Fitted(f) => json!({
-            "kind": format!("fitted {}", f.shape.name()),
-            "centre_mm": f.centre_mm,
-            "coefficients": f.coefficients,
-            "coefficients_meaning": "z = c0 + c1 x' + c2 y' + c3 x'^2 + c4 x'y' + c5 y'^2, x' = (x - centre) / 10 mm",
-            "sigma_mm": f.sigma_mm,
-            "inlier_share": f.inlier_share,
-        }),
-        ReferenceInfo::Golden(g) => json!({
-            "kind": "golden scan",
-            "dx_mm": g.dx_mm,
-            "dy_mm": g.dy_mm,
-            "theta_rad": g.theta_rad,
-            "dz_mm": g.dz_mm,
-            "centre_mm": g.centre_mm,
-            "mean_clipped_difference_mm": g.mean_difference_mm,
-            "overlap": g.overlap,
-        }),
-    }
-}
-
 /// The knowledge a product inspection runs with.
 pub struct ProductContext {
     /// The knowledge base.
@@ -269,116 +220,102 @@ pub fn report_json(
     i: &Inspection,
     input: &str,
     product: Option<(&ProductContext, &Assessment)>,
-) -> Value {
+) -> Report {
     let d = &i.detection;
     let (decision, reason) = match product {
         Some((_, a)) => (
             a.decision.name(),
             a.trace.first().cloned().unwrap_or_default(),
         ),
-        None => {
-            let (v, r) = verdict(d);
-            (v, r)
-        }
+        None => verdict(d),
     };
     let cell = range.spacing_mm[0] * range.spacing_mm[1];
-    let mut defects: Vec<Value> = d
+    let mut defects: Vec<ReportDefect> = d
         .defects
         .iter()
         .enumerate()
-        .map(|(n, x)| defect_json(n, x))
+        .map(|(n, x)| ReportDefect::of(n, x))
         .collect();
-    let mut report = json!({
-        "format": "stripe3d-report",
-        "version": 1,
-        "generator": format!("stripe3d {}", env!("CARGO_PKG_VERSION")),
-        "status": "inspected",
-        "input": input,
-        "verdict": decision,
-        "verdict_reason": reason,
-        "defects": [],
-        "unmeasured": d.unmeasured.iter().map(|u| json!({
-            "x_mm": u.centroid_mm[0], "y_mm": u.centroid_mm[1], "area_mm2": u.area_mm2, "reason": u.reason,
-        })).collect::<Vec<_>>(),
-        "warnings": d.warnings,
-        "reference": reference_json(&i.reference),
-        "surface": {
-            "part_area_mm2": d.part_cells as f64 * cell,
-            "coverage": d.coverage,
-            "noise_mm": i.maps.noise_mm,
-            "part_bbox_mm": d.part_bbox_mm,
-        },
-        "detectable": {
-            "smoothed_noise_mm": d.detectable.noise_mm,
-            "noise_sigmas": d.detectable.sigmas,
-            "threshold_mm": d.detectable.threshold_mm,
-            "threshold_raised": d.detectable.raised,
-            "smallest_bump_mm": d.detectable.threshold_mm,
-            "smallest_dent_mm": d.detectable.threshold_mm,
-            "smallest_hole_mm": d.detectable.hole_mm,
-        },
-        "range": {
-            "width": range.width, "height": range.height,
-            "origin_mm": range.origin_mm, "spacing_mm": range.spacing_mm,
-        },
-        "pictures": {
-            "defects": "defects.png",
-            "deviation": "deviation.png",
-            "legend": "defects.png: heights colour-mapped, grey = not measured; outlines by kind (red bump, blue dent, \
-                       magenta hole, cyan scratch, orange edge chip, white anomaly), labelled number + initial. \
-                       deviation.png: blue below the reference, red above, full colour at 5 x the detection threshold.",
-        },
-    });
+    let mut report = Report {
+        defects: Vec::new(),
+        detectable: Some(ReportDetectable {
+            noise_sigmas: d.detectable.sigmas,
+            smallest_bump_mm: d.detectable.threshold_mm,
+            smallest_dent_mm: d.detectable.threshold_mm,
+            smallest_hole_mm: d.detectable.hole_mm,
+            smoothed_noise_mm: d.detectable.noise_mm,
+            threshold_mm: d.detectable.threshold_mm,
+            threshold_raised: d.detectable.raised,
+        }),
+        diagnosis: None,
+        features: None,
+        format: REPORT_FORMAT,
+        generator: generator(),
+        input: input.to_string(),
+        knowledge_base: None,
+        pictures: Some(ReportPictures::default()),
+        product: None,
+        product_frame_origin_mm: None,
+        range: Some(ReportRange {
+            height: range.height,
+            origin_mm: range.origin_mm,
+            spacing_mm: range.spacing_mm,
+            width: range.width,
+        }),
+        reference: Some(ReportReference::of(&i.reference)),
+        status: "inspected",
+        surface: Some(ReportSurface {
+            coverage: d.coverage,
+            noise_mm: i.maps.noise_mm,
+            part_area_mm2: d.part_cells as f64 * cell,
+            part_bbox_mm: d.part_bbox_mm,
+        }),
+        trace: None,
+        unmeasured: Some(
+            d.unmeasured
+                .iter()
+                .map(|u| ReportUnmeasured {
+                    area_mm2: u.area_mm2,
+                    reason: u.reason.clone(),
+                    x_mm: u.centroid_mm[0],
+                    y_mm: u.centroid_mm[1],
+                })
+                .collect(),
+        ),
+        verdict: decision.to_string(),
+        verdict_reason: reason,
+        version: REPORT_VERSION,
+        warnings: d.warnings.clone(),
+    };
     if let Some((ctx, a)) = product {
         for x in &a.defects {
-            if let Some(Value::Object(o)) = defects.get_mut(x.index) {
-                o.insert("product_xy_mm".into(), json!(x.product_xy_mm));
-                o.insert("zone".into(), json!(x.zone));
-                o.insert("decision".into(), json!(x.decision.name()));
-                o.insert("reasons".into(), json!(x.reasons));
-                o.insert("causes".into(), json!(x.causes));
+            if let Some(o) = defects.get_mut(x.index) {
+                o.product_xy_mm = Some(x.product_xy_mm);
+                o.zone = Some(x.zone.clone());
+                o.decision = Some(x.decision.name().to_string());
+                o.reasons = Some(x.reasons.clone());
+                o.causes = Some(x.causes.clone());
             }
         }
         for f in &a.features {
-            if let Some(Value::Object(o)) = f.defect_index.and_then(|k| defects.get_mut(k)) {
-                o.insert("designed".into(), json!(f.name));
-                o.insert("decision".into(), json!("accept"));
+            if let Some(o) = f.defect_index.and_then(|k| defects.get_mut(k)) {
+                o.designed = Some(f.name.clone());
+                o.decision = Some("accept".to_string());
             }
         }
-        if let Value::Object(o) = &mut report {
-            o.insert("product".into(), json!(ctx.name));
-            o.insert(
-                "knowledge_base".into(),
-                json!({
-                    "name": ctx.kb.manifest.name,
-                    "version": ctx.kb.manifest.version,
-                    "folder": ctx.kb_dir.as_ref().map(|d| d.display().to_string()),
-                }),
-            );
-            o.insert("diagnosis".into(), json!(a.diagnosis));
-            o.insert("trace".into(), json!(a.trace));
-            o.insert("features".into(), json!(a.features));
-            o.insert("product_frame_origin_mm".into(), json!(a.frame_origin_mm));
-        }
+        report.product = Some(ctx.name.clone());
+        report.knowledge_base = Some(ReportKnowledgeBase {
+            folder: ctx.kb_dir.as_ref().map(|d| d.display().to_string()),
+            name: ctx.kb.manifest.name.clone(),
+            version: ctx.kb.manifest.version,
+        });
+        report.diagnosis = Some(a.diagnosis.clone());
+        report.trace = Some(a.trace.clone());
+        report.features = Some(a.features.clone());
+        report.product_frame_origin_mm = Some(a.frame_origin_mm);
     }
-    if let Value::Object(o) = &mut report {
-        o.insert("defects".into(), Value::Array(std::mem::take(&mut defects)));
-    }
+    report.defects = defects;
     report
-}
-
-fn error_report(message: &str, input: &str) -> Value {
-    json!({
-        "format": "stripe3d-report",
-        "version": 1,
-        "generator": format!("stripe3d {}", env!("CARGO_PKG_VERSION")),
-        "status": "error",
-        "input": input,
-        "verdict": "not-inspected",
-        "verdict_reason": message,
-        "defects": [],
-        "warnings": [message],
-    })
 }
 
 /// What `stripe3d inspect` concluded.
@@ -556,7 +493,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         Ok(i) => i,
         Err(e) => {
             let message = e.to_string();
-            write_report(&args.out, &error_report(&message, &input))?;
+            write_report(&args.out, &Report::error(&message, &input))?;
             bail!(
                 "{message} (wrote {})",
                 args.out.join("report.json").display()

@@ -220,6 +220,363 @@ pub(crate) fn read_layer(
     Ok(v)
 }
 
+/// `report.json`'s format name.
+pub const REPORT_FORMAT: &str = "stripe3d-report";
+/// `report.json`'s schema version.
+pub const REPORT_VERSION: u32 = 1;
+
+/// `report.json`: what `stripe3d inspect` concluded about one part. [`write_report`] writes every object's keys in
+/// alphabetical order; the fields of a product inspection are left out without one. Other tools read these names:
+/// add fields, never rename them.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Report {
+    /// The defects, numbered from 1.
+    pub defects: Vec<ReportDefect>,
+    /// The smallest defects this scan could show (absent when inspection failed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub detectable: Option<ReportDetectable>,
+    /// With a product: the causes the knowledge base ranks for the part.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub diagnosis: Option<Vec<stripe3d_kb::reason::CauseCertainty>>,
+    /// With a product: its designed features and what the scan showed of them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub features: Option<Vec<stripe3d_kb::reason::FeatureCheck>>,
+    /// [`REPORT_FORMAT`].
+    pub format: &'static str,
+    /// The program and its version.
+    pub generator: String,
+    /// What was inspected (a scan folder or frames).
+    pub input: String,
+    /// With a product: the knowledge base used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub knowledge_base: Option<ReportKnowledgeBase>,
+    /// The pictures written beside the report.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pictures: Option<ReportPictures>,
+    /// With a product: its name.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub product: Option<String>,
+    /// With a product: where the product's frame lies in the scan, mm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub product_frame_origin_mm: Option<[f64; 2]>,
+    /// The range image's grid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range: Option<ReportRange>,
+    /// The reference surface the deviations are measured from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<ReportReference>,
+    /// `inspected`, or `error`.
+    pub status: &'static str,
+    /// The part's surface as measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface: Option<ReportSurface>,
+    /// With a product: the reasoning, first line the verdict's reason.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trace: Option<Vec<String>>,
+    /// Areas of the part the scan did not measure.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unmeasured: Option<Vec<ReportUnmeasured>>,
+    /// `accept`, `rework`, `reject`, `incomplete`, or `not-inspected`.
+    pub verdict: String,
+    /// Why.
+    pub verdict_reason: String,
+    /// [`REPORT_VERSION`].
+    pub version: u32,
+    /// What makes the result doubtful.
+    pub warnings: Vec<String>,
+}
+
+/// One defect of [`Report::defects`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportDefect {
+    /// Footprint, mm².
+    pub area_mm2: f64,
+    /// Bounding box (x0, y0, x1, y1), mm.
+    pub bbox_mm: [f64; 4],
+    /// Whether a hole's bottom was seen.
+    pub bottom_seen: bool,
+    /// With a product: the causes ranked for it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub causes: Option<Vec<stripe3d_kb::reason::CauseCertainty>>,
+    /// The classification's certainty.
+    pub confidence: f64,
+    /// With a product: `accept`, `rework` or `reject` for this defect (`accept` for a designed feature).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decision: Option<String>,
+    /// Depth (or height), mm.
+    pub depth_mm: f64,
+    /// With a product: the designed feature this is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub designed: Option<String>,
+    /// What the classification weighed.
+    pub evidence: ReportEvidence,
+    /// Number, from 1.
+    pub id: usize,
+    /// Its kind.
+    pub kind: &'static str,
+    /// With a product: its position in the product's frame, mm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub product_xy_mm: Option<[f64; 2]>,
+    /// With a product: the rules that decided.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reasons: Option<Vec<String>>,
+    /// Volume, mm³.
+    pub volume_mm3: f64,
+    /// Centre, mm.
+    pub x_mm: f64,
+    /// Centre, mm.
+    pub y_mm: f64,
+    /// With a product: the zone it lies in (`null` outside every zone).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub zone: Option<Option<String>>,
+}
+
+/// A defect's evidence ([`stripe3d_core::detect::Evidence`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportEvidence {
+    /// Cells.
+    pub cells: usize,
+    /// Largest |mean curvature|, 1/mm.
+    pub curvature_per_mm: f64,
+    /// Direction uniformity.
+    pub direction: f64,
+    /// Notch depth into the outline, mm.
+    pub edge_notch_mm: f64,
+    /// Elongation.
+    pub elongation: f64,
+    /// Gap size, mm.
+    pub gap_mm: f64,
+    /// Height similarity across the gap, mm.
+    pub height_similarity_mm: f64,
+}
+
+impl ReportDefect {
+    /// Defect `n` (from 0) of an inspection, without the product's judgement.
+    pub fn of(n: usize, d: &Defect) -> Self {
+        let e = &d.evidence;
+        Self {
+            area_mm2: d.area_mm2,
+            bbox_mm: d.bbox_mm,
+            bottom_seen: d.bottom_seen,
+            causes: None,
+            confidence: d.confidence,
+            decision: None,
+            depth_mm: d.depth_mm,
+            designed: None,
+            evidence: ReportEvidence {
+                cells: e.cells,
+                curvature_per_mm: e.curvature_per_mm,
+                direction: e.direction,
+                edge_notch_mm: e.edge_notch_mm,
+                elongation: e.elongation,
+                gap_mm: e.gap_mm,
+                height_similarity_mm: e.height_similarity_mm,
+            },
+            id: n + 1,
+            kind: d.kind.name(),
+            product_xy_mm: None,
+            reasons: None,
+            volume_mm3: d.volume_mm3,
+            x_mm: d.centroid_mm[0],
+            y_mm: d.centroid_mm[1],
+            zone: None,
+        }
+    }
+}
+
+/// [`Report::detectable`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportDetectable {
+    /// The detection threshold in units of the smoothed noise.
+    pub noise_sigmas: f64,
+    /// Smallest bump, mm.
+    pub smallest_bump_mm: f64,
+    /// Smallest dent, mm.
+    pub smallest_dent_mm: f64,
+    /// Smallest hole, mm.
+    pub smallest_hole_mm: f64,
+    /// The smoothed deviation's noise, mm.
+    pub smoothed_noise_mm: f64,
+    /// The detection threshold, mm.
+    pub threshold_mm: f64,
+    /// Whether the noise raised the threshold above the method's.
+    pub threshold_raised: bool,
+}
+
+/// [`Report::knowledge_base`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportKnowledgeBase {
+    /// Its folder (`null`: the shipped example).
+    pub folder: Option<String>,
+    /// Its name.
+    pub name: String,
+    /// Its version.
+    pub version: u32,
+}
+
+/// [`Report::pictures`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportPictures {
+    /// The defects picture's file.
+    pub defects: &'static str,
+    /// The deviation picture's file.
+    pub deviation: &'static str,
+    /// How to read them.
+    pub legend: &'static str,
+}
+
+impl Default for ReportPictures {
+    fn default() -> Self {
+        Self {
+            defects: "defects.png",
+            deviation: "deviation.png",
+            legend: "defects.png: heights colour-mapped, grey = not measured; outlines by kind (red bump, blue dent, \
+                     magenta hole, cyan scratch, orange edge chip, white anomaly), labelled number + initial. \
+                     deviation.png: blue below the reference, red above, full colour at 5 x the detection threshold.",
+        }
+    }
+}
+
+/// [`Report::range`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportRange {
+    /// Rows.
+    pub height: usize,
+    /// x of column 0 and y of row 0, mm.
+    pub origin_mm: [f64; 2],
+    /// Cell size, mm.
+    pub spacing_mm: [f64; 2],
+    /// Columns.
+    pub width: usize,
+}
+
+/// [`Report::reference`]: a fitted surface or a registered golden scan.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum ReportReference {
+    /// A plane or quadratic fitted to the part.
+    Fitted {
+        /// Centre of the fit's coordinates, mm.
+        centre_mm: [f64; 2],
+        /// Its coefficients.
+        coefficients: [f64; 6],
+        /// What they mean.
+        coefficients_meaning: &'static str,
+        /// Share of the cells the fit kept.
+        inlier_share: f64,
+        /// `fitted plane` or `fitted quadratic`.
+        kind: String,
+        /// The fit's robust spread, mm.
+        sigma_mm: f64,
+    },
+    /// A golden scan registered to the part.
+    Golden {
+        /// Centre of the rotation, mm.
+        centre_mm: [f64; 2],
+        /// Shift, mm.
+        dx_mm: f64,
+        /// Shift, mm.
+        dy_mm: f64,
+        /// Height shift, mm.
+        dz_mm: f64,
+        /// `golden scan`.
+        kind: &'static str,
+        /// Mean clipped height difference after registration, mm.
+        mean_clipped_difference_mm: f64,
+        /// Share of the part on the golden part.
+        overlap: f64,
+        /// Rotation, rad.
+        theta_rad: f64,
+    },
+}
+
+impl ReportReference {
+    /// The report's account of a reference.
+    pub fn of(r: &stripe3d_core::characterize::ReferenceInfo) -> Self {
+        use stripe3d_core::characterize::ReferenceInfo;
+        match r {
+            ReferenceInfo::Fitted(f) => Self::Fitted {
+                centre_mm: f.centre_mm,
+                coefficients: f.coefficients,
+                coefficients_meaning: "z = c0 + c1 x' + c2 y' + c3 x'^2 + c4 x'y' + c5 y'^2, x' = (x - centre) / 10 mm",
+                inlier_share: f.inlier_share,
+                kind: format!("fitted {}", f.shape.name()),
+                sigma_mm: f.sigma_mm,
+            },
+            ReferenceInfo::Golden(g) => Self::Golden {
+                centre_mm: g.centre_mm,
+                dx_mm: g.dx_mm,
+                dy_mm: g.dy_mm,
+                dz_mm: g.dz_mm,
+                kind: "golden scan",
+                mean_clipped_difference_mm: g.mean_difference_mm,
+                overlap: g.overlap,
+                theta_rad: g.theta_rad,
+            },
+        }
+    }
+}
+
+/// [`Report::surface`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportSurface {
+    /// Measured part cells' share of the part's outline.
+    pub coverage: f64,
+    /// The height noise of the part's surface, mm.
+    pub noise_mm: f64,
+    /// Area of the part's cells, mm².
+    pub part_area_mm2: f64,
+    /// The part's bounding box (x0, y0, x1, y1), mm.
+    pub part_bbox_mm: [f64; 4],
+}
+
+/// One area of [`Report::unmeasured`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReportUnmeasured {
+    /// Area, mm².
+    pub area_mm2: f64,
+    /// Why it was not measured.
+    pub reason: String,
+    /// Centre, mm.
+    pub x_mm: f64,
+    /// Centre, mm.
+    pub y_mm: f64,
+}
+
+impl Report {
+    /// The report of an inspection that could not be made: `message` says why.
+    pub fn error(message: &str, input: &str) -> Self {
+        Self {
+            defects: Vec::new(),
+            detectable: None,
+            diagnosis: None,
+            features: None,
+            format: REPORT_FORMAT,
+            generator: generator(),
+            input: input.to_string(),
+            knowledge_base: None,
+            pictures: None,
+            product: None,
+            product_frame_origin_mm: None,
+            range: None,
+            reference: None,
+            status: "error",
+            surface: None,
+            trace: None,
+            unmeasured: None,
+            verdict: "not-inspected".to_string(),
+            verdict_reason: message.to_string(),
+            version: REPORT_VERSION,
+            warnings: vec![message.to_string()],
+        }
+    }
+}
+
+/// The program and its version, as reports name it.
+pub fn generator() -> String {
+    format!("stripe3d {}", env!("CARGO_PKG_VERSION"))
+}
+
 /// Outline colour of a defect kind.
 pub fn kind_colour(kind: DefectKind) -> [u8; 3] {
     match kind {
@@ -446,10 +803,16 @@ pub fn write_picture(path: &Path, picture: &(usize, usize, Vec<u8>)) -> Result<(
     write_rgb_png(path, picture.0, picture.1, &picture.2)
 }
 
-/// Writes `report.json` (pretty JSON) into `dir`.
-pub fn write_report(dir: &Path, report: &serde_json::Value) -> Result<(), IoError> {
-    let text = serde_json::to_string_pretty(report).unwrap_or_default();
-    write_atomic(&dir.join("report.json"), text.as_bytes())
+/// Writes `report.json` (pretty JSON, every object's keys in alphabetical order) into `dir`.
+pub fn write_report(dir: &Path, report: &Report) -> Result<(), IoError> {
+    let path = dir.join("report.json");
+    let text = serde_json::to_value(report)
+        .and_then(|v| serde_json::to_string_pretty(&v))
+        .map_err(|e| IoError::Write {
+            path: path.clone(),
+            source: std::io::Error::other(e),
+        })?;
+    write_atomic(&path, text.as_bytes())
 }
 
 #[cfg(test)]
@@ -599,6 +962,38 @@ mod tests {
         let sp = good.replacen("0.2,", "0.0,", 1);
         let e = range_from_json(&p, &sp).expect_err("zero spacing");
         assert!(e.to_string().contains("spacing_mm"), "{e}");
+    }
+
+    #[test]
+    fn an_error_report_names_only_what_it_knows_in_alphabetical_order() {
+        let dir = tempfile::tempdir().expect("tmp");
+        write_report(dir.path(), &Report::error("no part", "scan/")).expect("write");
+        let text = std::fs::read_to_string(dir.path().join("report.json")).expect("report");
+        let v: serde_json::Value = serde_json::from_str(&text).expect("json");
+        let keys: Vec<&str> = v
+            .as_object()
+            .expect("object")
+            .keys()
+            .map(String::as_str)
+            .collect();
+        assert_eq!(
+            keys,
+            [
+                "defects",
+                "format",
+                "generator",
+                "input",
+                "status",
+                "verdict",
+                "verdict_reason",
+                "version",
+                "warnings"
+            ]
+        );
+        assert_eq!(v["verdict"], "not-inspected");
+        assert_eq!(v["warnings"][0], "no part");
+        let at = |k: &str| text.find(&format!("\"{k}\"")).expect("key");
+        assert!(at("defects") < at("format") && at("verdict_reason") < at("warnings"));
     }
 
     /// Overwrites bytes of the file at `path` (positions modulo its length) and cuts it short.
