@@ -19,6 +19,7 @@ pub mod code;
 pub mod curvature;
 pub mod error;
 pub mod extract;
+pub mod geometry;
 pub mod image;
 pub mod rules;
 pub mod scan;

@@ -235,6 +235,11 @@ impl LaserPlane {
         self.normal.dot(&(p - self.source))
     }
 
+    /// The sheet's centre plane.
+    pub fn plane(&self) -> crate::geometry::Plane {
+        crate::geometry::Plane::through(&self.source, &self.normal)
+    }
+
     /// Tangent of the sheet's angle from the vertical: how far (mm) the stripe moves towards −x per mm of height.
     pub fn tan_angle(&self) -> f64 {
         self.normal.z / self.normal.x
