@@ -436,17 +436,19 @@ fn read_frame_limited(
         path: path.to_path_buf(),
         message,
     };
-    let (w, h) = crate::error::decode_guarded(path, || {
+    // Opened twice: the header alone first, so that a hostile size is refused before anything is decoded.
+    let open = || {
+        let read = |source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        };
         image::ImageReader::open(path)
-            .map_err(|source| IoError::Read {
-                path: path.to_path_buf(),
-                source,
-            })?
+            .map_err(read)?
             .with_guessed_format()
-            .map_err(|source| IoError::Read {
-                path: path.to_path_buf(),
-                source,
-            })?
+            .map_err(read)
+    };
+    let (w, h) = crate::error::decode_guarded(path, || {
+        open()?
             .into_dimensions()
             .map_err(|e| bad(format!("not a readable PNG, JPEG, PGM or TIFF image: {e}")))
     })?;
@@ -460,16 +462,7 @@ fn read_frame_limited(
             "{w}x{h} pixels is more than the limit of {max_pixels}; raise it with --max-pixels"
         )));
     }
-    let reader = image::ImageReader::open(path)
-        .map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?
-        .with_guessed_format()
-        .map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    let reader = open()?;
     let img = crate::error::decode_guarded(path, || {
         reader
             .decode()

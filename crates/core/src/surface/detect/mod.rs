@@ -37,6 +37,119 @@ pub use classify::*;
 pub use measure::*;
 pub use morphology::*;
 
+/// Regions of part cells (`on_part`) whose smoothed deviation reaches `thresholds[1]` (mm) with one sign, kept when
+/// one of their cells reaches `thresholds[0]` where `seeds_allowed` (hysteresis: strong cells seed a region, weaker
+/// ones extend it), raised regions first, then sunken ones, each in raster order of its first cell; with their
+/// sign (+1 raised, −1 sunken).
+fn deviating_regions(
+    w: usize,
+    h: usize,
+    on_part: &[bool],
+    smoothed_mm: &[f32],
+    [seed_mm, grow_mm]: [f64; 2],
+    seeds_allowed: impl Fn(usize) -> bool,
+) -> Vec<(Vec<usize>, f64)> {
+    let mut out = Vec::new();
+    for sign in [1.0f32, -1.0] {
+        let grow = |k: usize| on_part[k] && smoothed_mm[k] * sign >= grow_mm as f32;
+        let (label, sizes) = components(w, h, grow, true);
+        let mut seeded = vec![false; sizes.len()];
+        for k in 0..w * h {
+            if label[k] != 0 && smoothed_mm[k] * sign >= seed_mm as f32 && seeds_allowed(k) {
+                seeded[label[k] as usize] = true;
+            }
+        }
+        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); sizes.len()];
+        for k in 0..w * h {
+            if label[k] != 0 && seeded[label[k] as usize] {
+                cells[label[k] as usize].push(k);
+            }
+        }
+        out.extend(
+            cells
+                .into_iter()
+                .filter(|c| !c.is_empty())
+                .map(|c| (c, f64::from(sign))),
+        );
+    }
+    out
+}
+
+/// The sides of the grid the part (`on_part`, a `w` x `h` grid) touches: only its two outermost rows and columns
+/// can.
+fn border_sides(w: usize, h: usize, on_part: &[bool]) -> Vec<&'static str> {
+    let band_rows = (0..h.min(2)).chain(h.saturating_sub(2).max(2)..h);
+    let band_cols = (0..w.min(2)).chain(w.saturating_sub(2).max(2)..w);
+    let row_hit = |j: usize| (0..w).any(|i| on_part[j * w + i]);
+    let col_hit = |i: usize| (0..h).any(|j| on_part[j * w + i]);
+    let mut touches = Vec::new();
+    for j in band_rows {
+        let side = if j <= 1 { "top (+y)" } else { "bottom (−y)" };
+        if !touches.contains(&side) && row_hit(j) {
+            touches.push(side);
+        }
+    }
+    for i in band_cols {
+        let side = if i <= 1 {
+            "start of the scan (−x)"
+        } else {
+            "end of the scan (+x)"
+        };
+        if !touches.contains(&side) && col_hit(i) {
+            touches.push(side);
+        }
+    }
+    touches
+}
+
+/// The bounding box (x0, y0, x1, y1), mm, of the part's cells (`on_part`) including their own extent.
+fn part_bbox(range: &RangeImage, on_part: &[bool]) -> [f64; 4] {
+    let (w, h) = (range.width, range.height);
+    let extremes = row_extremes(w, h, on_part);
+    extremes.iter().enumerate().fold(
+        [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ],
+        |b, (j, e)| {
+            let Some((i0, i1)) = *e else { return b };
+            let (x0, y) = cell_xy(range, i0, j);
+            let (x1, _) = cell_xy(range, i1, j);
+            let (hx, hy) = (range.spacing_mm[0] / 2.0, range.spacing_mm[1] / 2.0);
+            [
+                b[0].min(x0 - hx),
+                b[1].min(y - hy),
+                b[2].max(x1 + hx),
+                b[3].max(y + hy),
+            ]
+        },
+    )
+}
+
+/// The part's expected outline: the cells of its convex hull (of `on_part`, a `w` x `h` grid) where the reference
+/// expects surface (`reference_mm` finite).
+fn expected_outline(w: usize, h: usize, on_part: &[bool], reference_mm: &[f32]) -> Vec<bool> {
+    let rows = hull_rows(w, h, on_part);
+    let mut expected_mask = vec![false; w * h];
+    for (j, row) in rows.iter().enumerate() {
+        let Some((a, b)) = *row else { continue };
+        let lo = (a - 1e-9).ceil().max(0.0) as usize;
+        let hi = ((b + 1e-9).floor() as usize).min(w - 1);
+        if lo <= hi {
+            let span = j * w + lo..=j * w + hi;
+            for (e, r) in expected_mask[span.clone()]
+                .iter_mut()
+                .zip(&reference_mm[span])
+            {
+                *e = r.is_finite();
+            }
+        }
+    }
+    expected_mask
+}
+
 /// The kinds of defect.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum DefectKind {
@@ -389,28 +502,7 @@ pub fn detect(
         }));
     }
     // The part running out of the measured area.
-    // Only the two outermost rows and columns can touch.
-    let band_rows = (0..h.min(2)).chain(h.saturating_sub(2).max(2)..h);
-    let band_cols = (0..w.min(2)).chain(w.saturating_sub(2).max(2)..w);
-    let row_hit = |j: usize| (0..w).any(|i| on_part(j * w + i));
-    let col_hit = |i: usize| (0..h).any(|j| on_part(j * w + i));
-    let mut touches = Vec::new();
-    for j in band_rows {
-        let side = if j <= 1 { "top (+y)" } else { "bottom (−y)" };
-        if !touches.contains(&side) && row_hit(j) {
-            touches.push(side);
-        }
-    }
-    for i in band_cols {
-        let side = if i <= 1 {
-            "start of the scan (−x)"
-        } else {
-            "end of the scan (+x)"
-        };
-        if !touches.contains(&side) && col_hit(i) {
-            touches.push(side);
-        }
-    }
+    let touches = border_sides(w, h, &opened);
     if !touches.is_empty() {
         out.warnings.push(format!(
             "the part runs out of the measured area at the {}: what lies beyond was not inspected",
@@ -418,44 +510,9 @@ pub fn detect(
         ));
     }
     // Rows and columns, never cell indices divided by the width: the part is most of the grid.
-    let extremes = row_extremes(w, h, &opened);
-    out.part_bbox_mm = extremes.iter().enumerate().fold(
-        [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ],
-        |b, (j, e)| {
-            let Some((i0, i1)) = *e else { return b };
-            let (x0, y) = cell_xy(range, i0, j);
-            let (x1, _) = cell_xy(range, i1, j);
-            let (hx, hy) = (range.spacing_mm[0] / 2.0, range.spacing_mm[1] / 2.0);
-            [
-                b[0].min(x0 - hx),
-                b[1].min(y - hy),
-                b[2].max(x1 + hx),
-                b[3].max(y + hy),
-            ]
-        },
-    );
+    out.part_bbox_mm = part_bbox(range, &opened);
     // Expected outline: the hull of the part, where the reference expects surface.
-    let rows = hull_rows(w, h, &opened);
-    let mut expected_mask = vec![false; w * h];
-    for (j, row) in rows.iter().enumerate() {
-        let Some((a, b)) = *row else { continue };
-        let lo = (a - 1e-9).ceil().max(0.0) as usize;
-        let hi = ((b + 1e-9).floor() as usize).min(w - 1);
-        if lo <= hi {
-            let span = j * w + lo..=j * w + hi;
-            for (e, r) in expected_mask[span.clone()]
-                .iter_mut()
-                .zip(&maps.reference_mm[span])
-            {
-                *e = r.is_finite();
-            }
-        }
-    }
+    let expected_mask = expected_outline(w, h, &opened, &maps.reference_mm);
     let expected = |k: usize| expected_mask[k];
     let expected_cells = expected_mask.iter().filter(|&&e| e).count();
     out.coverage = opened
@@ -487,29 +544,11 @@ pub fn detect(
         ));
     }
     // 2. Deviating regions by hysteresis, one sign at a time.
-    let mut candidates: Vec<(Vec<usize>, f64)> = Vec::new();
-    for sign in [1.0f32, -1.0] {
-        let grow = |k: usize| on_part(k) && maps.smoothed_mm[k] * sign >= grow_mm as f32;
-        let (label, sizes) = components(w, h, grow, true);
-        let mut seeded = vec![false; sizes.len()];
-        for k in 0..w * h {
-            if label[k] != 0 && maps.smoothed_mm[k] * sign >= seed_mm as f32 && edge_dist[k] > band
-            {
-                seeded[label[k] as usize] = true;
-            }
-        }
-        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); sizes.len()];
-        for k in 0..w * h {
-            if label[k] != 0 && seeded[label[k] as usize] {
-                cells[label[k] as usize].push(k);
-            }
-        }
-        for c in cells.into_iter().filter(|c| !c.is_empty()) {
-            if c.len() as f64 * cell_area >= params.min_area_mm2 {
-                candidates.push((c, f64::from(sign)));
-            }
-        }
-    }
+    let mut candidates =
+        deviating_regions(w, h, &opened, &maps.smoothed_mm, [seed_mm, grow_mm], |k| {
+            edge_dist[k] > band
+        });
+    candidates.retain(|(c, _)| c.len() as f64 * cell_area >= params.min_area_mm2);
     if candidates.len() > params.max_candidates {
         out.warnings.push(format!(
             "{} deviating regions: more than the {} evaluated; the reference surface probably does not fit this part \
@@ -616,75 +655,7 @@ pub fn detect(
         out.defects.push(d);
     }
     // 3. Gaps: regions without part data that the outside cannot reach.
-    let (olabel, _) = components(w, h, |k| !on_part(k), false);
-    let mut outside_ids = std::collections::HashSet::new();
-    for i in 0..w {
-        outside_ids.insert(olabel[i]);
-        outside_ids.insert(olabel[(h - 1) * w + i]);
-    }
-    for j in 0..h {
-        outside_ids.insert(olabel[j * w]);
-        outside_ids.insert(olabel[j * w + w - 1]);
-    }
-    let mut whole_gaps: std::collections::BTreeMap<u32, Vec<usize>> =
-        std::collections::BTreeMap::new();
-    for (k, &l) in olabel.iter().enumerate() {
-        if l != 0 && !outside_ids.contains(&l) {
-            whole_gaps.entry(l).or_default().push(k);
-        }
-    }
-    // A thin channel of missing data (a stripe coding dropped for a frame or two: a column up to
-    // 2 * GAP_CHANNEL_CELLS cells wide) is not part of a hole it touches: each gap is opened by a (2r+1)² square on
-    // a window around it, and every core left is a gap of its own, given back the gap's cells within r of it (the
-    // rim slivers the opening took) but no more of the channel. A gap that is all channel stays whole.
-    let mut gaps: Vec<Vec<usize>> = Vec::new();
-    for cells in whole_gaps.into_values() {
-        let (mut i0, mut i1, mut j0, mut j1) = (w, 0, h, 0);
-        for &k in &cells {
-            let (i, j) = (k % w, k / w);
-            i0 = i0.min(i);
-            i1 = i1.max(i);
-            j0 = j0.min(j);
-            j1 = j1.max(j);
-        }
-        // One cell of margin, which is never the gap's (the gap is enclosed, so not on the grid's border).
-        let (i0, j0) = (i0 - 1, j0 - 1);
-        let (sw, sh) = (i1 + 2 - i0, j1 + 2 - j0);
-        let mut member = vec![false; sw * sh];
-        for &k in &cells {
-            member[(k / w - j0) * sw + (k % w - i0)] = true;
-        }
-        let cores = opening_by(sw, sh, &member, GAP_CHANNEL_CELLS);
-        let (clabel, csizes) = components(sw, sh, |q| cores[q], false);
-        // No core (all channel), or one core that is the whole gap: the gap as it is.
-        if csizes.len() < 2 || (csizes.len() == 2 && cores == member) {
-            gaps.push(cells);
-            continue;
-        }
-        let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); csizes.len()];
-        let r = GAP_CHANNEL_CELLS as isize;
-        for &k in &cells {
-            let (si, sj) = ((k % w - i0) as isize, (k / w - j0) as isize);
-            let mut best: Option<(isize, u32)> = None;
-            for dj in -r..=r {
-                for di in -r..=r {
-                    let (ii, jj) = (si + di, sj + dj);
-                    if ii < 0 || jj < 0 || ii >= sw as isize || jj >= sh as isize {
-                        continue;
-                    }
-                    let l = clabel[jj as usize * sw + ii as usize];
-                    let d = di.abs().max(dj.abs());
-                    if l != 0 && best.is_none_or(|(bd, _)| d < bd) {
-                        best = Some((d, l));
-                    }
-                }
-            }
-            if let Some((_, l)) = best {
-                pieces[l as usize].push(k);
-            }
-        }
-        gaps.extend(pieces.into_iter().filter(|p| !p.is_empty()));
-    }
+    let (gaps, open_to_border) = enclosed_gaps(w, h, &opened);
     for cells in &gaps {
         let area = cells.len() as f64 * cell_area;
         if area < params.min_gap_mm2 {
@@ -835,7 +806,7 @@ pub fn detect(
         });
     }
     // 4. Edge chips: expected cells, not the part, open to the outside.
-    let chip = |k: usize| !on_part(k) && expected(k) && outside_ids.contains(&olabel[k]);
+    let chip = |k: usize| !on_part(k) && expected(k) && open_to_border[k];
     let (clabel, csizes) = components(w, h, chip, false);
     if csizes.len() > 1 {
         let depth = distance_to(w, h, |k| !expected(k));

@@ -339,3 +339,82 @@ pub(super) fn hull_rows(w: usize, h: usize, mask: &[bool]) -> Vec<Option<(f64, f
     }
     rows
 }
+
+/// The regions without part data that the outside of the grid cannot reach (`on_part`: the part's cells of a `w` x
+/// `h` grid), each a list of cell indices. A thin channel of missing data (a stripe coding dropped for a frame or
+/// two: a column up to 2 * [`GAP_CHANNEL_CELLS`] cells wide) is not part of a hole it touches: each gap is opened by
+/// a (2r+1)² square on a window around it, and every core left is a gap of its own, given back the gap's cells
+/// within r of it (the rim slivers the opening took) but no more of the channel. A gap that is all channel stays
+/// whole. Also returns, per cell, whether it is off the part and open to the grid's border.
+pub(super) fn enclosed_gaps(w: usize, h: usize, on_part: &[bool]) -> (Vec<Vec<usize>>, Vec<bool>) {
+    let (olabel, _) = components(w, h, |k| !on_part[k], false);
+    let mut outside_ids = std::collections::HashSet::new();
+    for i in 0..w {
+        outside_ids.insert(olabel[i]);
+        outside_ids.insert(olabel[(h - 1) * w + i]);
+    }
+    for j in 0..h {
+        outside_ids.insert(olabel[j * w]);
+        outside_ids.insert(olabel[j * w + w - 1]);
+    }
+    let mut whole_gaps: std::collections::BTreeMap<u32, Vec<usize>> =
+        std::collections::BTreeMap::new();
+    for (k, &l) in olabel.iter().enumerate() {
+        if l != 0 && !outside_ids.contains(&l) {
+            whole_gaps.entry(l).or_default().push(k);
+        }
+    }
+    let mut gaps: Vec<Vec<usize>> = Vec::new();
+    for cells in whole_gaps.into_values() {
+        let (mut i0, mut i1, mut j0, mut j1) = (w, 0, h, 0);
+        for &k in &cells {
+            let (i, j) = (k % w, k / w);
+            i0 = i0.min(i);
+            i1 = i1.max(i);
+            j0 = j0.min(j);
+            j1 = j1.max(j);
+        }
+        // One cell of margin, which is never the gap's (the gap is enclosed, so not on the grid's border).
+        let (i0, j0) = (i0 - 1, j0 - 1);
+        let (sw, sh) = (i1 + 2 - i0, j1 + 2 - j0);
+        let mut member = vec![false; sw * sh];
+        for &k in &cells {
+            member[(k / w - j0) * sw + (k % w - i0)] = true;
+        }
+        let cores = opening_by(sw, sh, &member, GAP_CHANNEL_CELLS);
+        let (clabel, csizes) = components(sw, sh, |q| cores[q], false);
+        // No core (all channel), or one core that is the whole gap: the gap as it is.
+        if csizes.len() < 2 || (csizes.len() == 2 && cores == member) {
+            gaps.push(cells);
+            continue;
+        }
+        let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); csizes.len()];
+        let r = GAP_CHANNEL_CELLS as isize;
+        for &k in &cells {
+            let (si, sj) = ((k % w - i0) as isize, (k / w - j0) as isize);
+            let mut best: Option<(isize, u32)> = None;
+            for dj in -r..=r {
+                for di in -r..=r {
+                    let (ii, jj) = (si + di, sj + dj);
+                    if ii < 0 || jj < 0 || ii >= sw as isize || jj >= sh as isize {
+                        continue;
+                    }
+                    let l = clabel[jj as usize * sw + ii as usize];
+                    let d = di.abs().max(dj.abs());
+                    if l != 0 && best.is_none_or(|(bd, _)| d < bd) {
+                        best = Some((d, l));
+                    }
+                }
+            }
+            if let Some((_, l)) = best {
+                pieces[l as usize].push(k);
+            }
+        }
+        gaps.extend(pieces.into_iter().filter(|p| !p.is_empty()));
+    }
+    let open = olabel
+        .iter()
+        .map(|l| *l != 0 && outside_ids.contains(l))
+        .collect();
+    (gaps, open)
+}
