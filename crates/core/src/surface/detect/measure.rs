@@ -386,3 +386,98 @@ pub(super) fn hole_area(range: &RangeImage, cells: &[usize], travel_step_mm: Opt
     }
     total * cell_area
 }
+
+/// How different the surface's heights are on opposite sides of a gap (`cells`, with shape `s`): the larger of the
+/// left-right and top-bottom differences of the median deviation, over the part cells (`on_part`) of a ring beyond
+/// the rim band (`band`, cells: half-lit stripes, walls seen in perspective), three cells deep; 50 mm when a side
+/// has none (distances on a window around the gap only).
+pub(super) fn height_similarity(
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    cells: &[usize],
+    s: &Shape,
+    band: f32,
+    on_part: &[bool],
+) -> f64 {
+    let w = range.width;
+    // Ring: part cells beyond the rim band (half-lit stripes, walls seen in perspective), three cells deep;
+    // distances on a window around the gap only.
+    let ring_lo = band.max(1.0);
+    let ring_hi = ring_lo + 3.0;
+    let (bi0, bj0, bi1, bj1) = bbox_cells(range, &s.bbox, ring_hi.ceil() as usize + 1);
+    let (ww, wh) = (bi1 - bi0, bj1 - bj0);
+    let mut in_gap = vec![false; ww * wh];
+    for &k in cells {
+        let (i, j) = (k % w, k / w);
+        if (bi0..bi1).contains(&i) && (bj0..bj1).contains(&j) {
+            in_gap[(j - bj0) * ww + (i - bi0)] = true;
+        }
+    }
+    let near = distance_to(ww, wh, |k| in_gap[k]);
+    let (mut left, mut right, mut top, mut bottom) = (vec![], vec![], vec![], vec![]);
+    let (ci, cj) = (
+        (s.centroid[0] - range.origin_mm[0]) / range.spacing_mm[0],
+        (range.origin_mm[1] - s.centroid[1]) / range.spacing_mm[1],
+    );
+    for j in bj0..bj1 {
+        for i in bi0..bi1 {
+            let k = j * w + i;
+            let dist = near[(j - bj0) * ww + (i - bi0)];
+            if dist < ring_lo || dist > ring_hi || !on_part[k] {
+                continue;
+            }
+            let d = f64::from(maps.deviation_mm[k]);
+            if !d.is_finite() {
+                continue;
+            }
+            if (i as f64) < ci {
+                left.push(d)
+            } else {
+                right.push(d)
+            }
+            if (j as f64) < cj {
+                top.push(d)
+            } else {
+                bottom.push(d)
+            }
+        }
+    }
+    if left.is_empty() || right.is_empty() || top.is_empty() || bottom.is_empty() {
+        50.0
+    } else {
+        (median(&mut left) - median(&mut right))
+            .abs()
+            .max((median(&mut top) - median(&mut bottom)).abs())
+    }
+}
+
+/// What lies under a gap (`cells`): the reference heights over it, whether its bottom is seen (at least
+/// `min_seen_share` of its cells hold heights: a few wall samples are not a bottom), the floor (the median seen
+/// height, or the belt when the bottom is not seen) and the reference's median, mm; the depth is the reference over
+/// the floor.
+pub(super) fn gap_depth(
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    cells: &[usize],
+    min_seen_share: f64,
+) -> (Vec<f64>, bool, f64, f64) {
+    let mut refs: Vec<f64> = cells
+        .iter()
+        .map(|&k| f64::from(maps.reference_mm[k]))
+        .filter(|v| v.is_finite())
+        .collect();
+    let seen: Vec<f64> = cells
+        .iter()
+        .map(|&k| f64::from(range.z[k]))
+        .filter(|v| v.is_finite())
+        .collect();
+    let bottom_seen = seen.len() as f64 >= min_seen_share * cells.len() as f64;
+    let floor = if bottom_seen {
+        let mut seen = seen;
+        median(&mut seen).max(0.0)
+    } else {
+        0.0
+    };
+    let reference = median(&mut refs);
+    (refs, bottom_seen, floor, reference)
+}

@@ -671,57 +671,7 @@ pub fn detect(
             continue;
         }
         let s = shape(range, cells, |_| 1.0);
-        // Ring: part cells within two cells of the gap.
-        // Ring: part cells beyond the rim band (half-lit stripes, walls seen in perspective), three cells deep;
-        // distances on a window around the gap only.
-        let ring_lo = band.max(1.0);
-        let ring_hi = ring_lo + 3.0;
-        let (bi0, bj0, bi1, bj1) = bbox_cells(range, &s.bbox, ring_hi.ceil() as usize + 1);
-        let (ww, wh) = (bi1 - bi0, bj1 - bj0);
-        let mut in_gap = vec![false; ww * wh];
-        for &k in cells {
-            let (i, j) = (k % w, k / w);
-            if (bi0..bi1).contains(&i) && (bj0..bj1).contains(&j) {
-                in_gap[(j - bj0) * ww + (i - bi0)] = true;
-            }
-        }
-        let near = distance_to(ww, wh, |k| in_gap[k]);
-        let (mut left, mut right, mut top, mut bottom) = (vec![], vec![], vec![], vec![]);
-        let (ci, cj) = (
-            (s.centroid[0] - range.origin_mm[0]) / range.spacing_mm[0],
-            (range.origin_mm[1] - s.centroid[1]) / range.spacing_mm[1],
-        );
-        for j in bj0..bj1 {
-            for i in bi0..bi1 {
-                let k = j * w + i;
-                let dist = near[(j - bj0) * ww + (i - bi0)];
-                if dist < ring_lo || dist > ring_hi || !on_part(k) {
-                    continue;
-                }
-                let d = f64::from(maps.deviation_mm[k]);
-                if !d.is_finite() {
-                    continue;
-                }
-                if (i as f64) < ci {
-                    left.push(d)
-                } else {
-                    right.push(d)
-                }
-                if (j as f64) < cj {
-                    top.push(d)
-                } else {
-                    bottom.push(d)
-                }
-            }
-        }
-        let similarity =
-            if left.is_empty() || right.is_empty() || top.is_empty() || bottom.is_empty() {
-                50.0
-            } else {
-                (median(&mut left) - median(&mut right))
-                    .abs()
-                    .max((median(&mut top) - median(&mut bottom)).abs())
-            };
+        let similarity = height_similarity(range, maps, cells, &s, band, &opened);
         let ev = Evidence {
             curvature_per_mm: 0.0,
             direction: 0.0,
@@ -754,26 +704,8 @@ pub fn detect(
             });
             continue;
         }
-        // Depth: the reference over the lowest surface seen inside (the belt when nothing is seen).
-        let mut refs: Vec<f64> = cells
-            .iter()
-            .map(|&k| f64::from(maps.reference_mm[k]))
-            .filter(|v| v.is_finite())
-            .collect();
-        let seen: Vec<f64> = cells
-            .iter()
-            .map(|&k| f64::from(range.z[k]))
-            .filter(|v| v.is_finite())
-            .collect();
-        // A bottom is seen when much of the gap holds heights (a few wall samples are not a bottom).
-        let bottom_seen = seen.len() as f64 >= params.min_seen_share * cells.len() as f64;
-        let floor = if bottom_seen {
-            let mut seen = seen;
-            median(&mut seen).max(0.0)
-        } else {
-            0.0
-        };
-        let reference = median(&mut refs);
+        let (refs, bottom_seen, floor, reference) =
+            gap_depth(range, maps, cells, params.min_seen_share);
         // A gap whose cells mostly hold the surface's own heights is a seam of missing samples (measured strips too
         // thin for the part's mask between them), not a hole.
         if bottom_seen && reference - floor < params.seed_mm {
