@@ -150,6 +150,313 @@ fn expected_outline(w: usize, h: usize, on_part: &[bool], reference_mm: &[f32]) 
     expected_mask
 }
 
+/// Stage 2's regions (with their signs) weighed by the rules: bumps and dents measured with the bell fit, or turned
+/// into unmeasured areas (too narrow along the travel for the samples to resolve; nameless outlier heights).
+fn weigh_regions(
+    candidates: &[(Vec<usize>, f64)],
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    grow_mm: f64,
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+    out: &mut Detection,
+) -> Result<(), CoreError> {
+    let w = range.width;
+    let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
+    for (cells, sign) in candidates {
+        let s = shape(range, cells, |k| f64::from(maps.deviation_mm[k]).abs());
+        let (mut sum, mut sum_abs, mut curv) = (0.0, 0.0, 0.0f64);
+        let mut peak = 0.0f64;
+        let mut with_curvature = 0usize;
+        for &k in cells {
+            let d = f64::from(maps.deviation_mm[k]);
+            if d.is_finite() {
+                sum += d;
+                sum_abs += d.abs();
+                if d * sign > peak {
+                    peak = d * sign;
+                }
+            }
+            if let Some(g) = geometry_at(range, maps, k % w, k / w) {
+                curv = curv.max(g.mean_curvature.abs());
+                with_curvature += 1;
+            }
+        }
+        if 2 * with_curvature < cells.len() {
+            // Most of the region lies where the derivative window is incomplete (a narrow fragment between
+            // gaps): bound its curvature from its height and size as a bell's top, pi² A / (2 r²).
+            let r2 = cells.len() as f64 * cell_area / std::f64::consts::PI;
+            curv = curv.max(std::f64::consts::PI.powi(2) * peak / (2.0 * r2));
+        }
+        let ev = Evidence {
+            curvature_per_mm: curv,
+            direction: if sum_abs > 0.0 { sum / sum_abs } else { 0.0 },
+            gap_mm: 0.0,
+            height_similarity_mm: 50.0,
+            elongation: s.elongation,
+            edge_notch_mm: 0.0,
+            cells: cells.len(),
+        };
+        let area = cells.len() as f64 * cell_area;
+        let (kind, confidence, reported) = weigh(
+            out,
+            CandidateSource::Surface,
+            s.centroid,
+            area,
+            ev,
+            rules,
+            params,
+        )?;
+        if reported && matches!(kind, DefectKind::Bump | DefectKind::Dent) {
+            if let Some(step) = params.travel_step_mm.filter(|s| s.is_finite() && *s > 0.0) {
+                let width = half_peak_travel_width(range, cells, &maps.deviation_mm, *sign, peak);
+                if width < params.min_region_travel_steps * step {
+                    // Not a surface the samples resolve: out of the candidates (learning never sees it) and into
+                    // the unmeasured.
+                    out.candidates.pop();
+                    out.unmeasured.push(Unmeasured {
+                        centroid_mm: s.centroid,
+                        area_mm2: area,
+                        reason: format!(
+                            "{peak:.2} mm off the reference, but only {width:.2} mm wide along the travel at half \
+                             that: under {} travel steps of {step:.2} mm, as one frame's misplaced samples are (a \
+                             bump or dent 2 mm across is 1 mm wide there)",
+                            params.min_region_travel_steps
+                        ),
+                    });
+                    continue;
+                }
+            }
+        }
+        if !reported {
+            // Small, steep and nameless: heights a wrong stripe index or a glint put there, not a surface.
+            out.unmeasured.push(Unmeasured {
+                centroid_mm: s.centroid,
+                area_mm2: area,
+                reason: format!(
+                    "{peak:.2} mm off the reference over {area:.2} mm² with a curvature of {curv:.1}/mm: outlier \
+                     heights, not a surface the rules can name"
+                ),
+            });
+            continue;
+        }
+        let mut d = Defect {
+            kind,
+            centroid_mm: s.centroid,
+            bbox_mm: s.bbox,
+            area_mm2: area,
+            depth_mm: peak,
+            volume_mm3: sum_abs * cell_area,
+            confidence,
+            bottom_seen: true,
+            evidence: ev,
+        };
+        if matches!(kind, DefectKind::Bump | DefectKind::Dent) {
+            measure_bell(range, maps, &s, *sign, peak, grow_mm, &mut d);
+        }
+        if let Some(c) = out.candidates.last_mut() {
+            c.defect = Some(out.defects.len());
+        }
+        out.defects.push(d);
+    }
+    Ok(())
+}
+
+/// Stage 3's gaps weighed by the rules: holes measured (area, depth, volume), or turned into unmeasured areas (a
+/// designed opening is skipped; a shadow, an edge or a seam of missing samples is not a hole).
+#[allow(clippy::too_many_arguments)]
+fn weigh_gaps(
+    gaps: &[Vec<usize>],
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    band: f32,
+    on_part: &[bool],
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+    out: &mut Detection,
+) -> Result<(), CoreError> {
+    let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
+    for cells in gaps {
+        let area = cells.len() as f64 * cell_area;
+        if area < params.min_gap_mm2 {
+            continue;
+        }
+        let expected_share = cells
+            .iter()
+            .filter(|&&k| maps.reference_mm[k].is_finite())
+            .count() as f64
+            / cells.len() as f64;
+        if expected_share < 0.5 {
+            // The reference has no surface here either: a designed opening.
+            continue;
+        }
+        let s = shape(range, cells, |_| 1.0);
+        let similarity = height_similarity(range, maps, cells, &s, band, on_part);
+        let ev = Evidence {
+            curvature_per_mm: 0.0,
+            direction: 0.0,
+            gap_mm: 2.0 * (area / std::f64::consts::PI).sqrt(),
+            height_similarity_mm: similarity,
+            elongation: s.elongation,
+            edge_notch_mm: 0.0,
+            cells: cells.len(),
+        };
+        let (kind, confidence, reported) = weigh(
+            out,
+            CandidateSource::Gap,
+            s.centroid,
+            area,
+            ev,
+            rules,
+            params,
+        )?;
+        if !reported {
+            out.unmeasured.push(Unmeasured {
+                centroid_mm: s.centroid,
+                area_mm2: area,
+                reason: if similarity >= 50.0 {
+                    "no data and the surface around it is not measured on every side".into()
+                } else if similarity > 0.5 {
+                    format!("no data, with {similarity:.2} mm between the heights on either side (a shadow or an edge)")
+                } else {
+                    gap_reason(rules, &ev, confidence, params)
+                },
+            });
+            continue;
+        }
+        let (refs, bottom_seen, floor, reference) =
+            gap_depth(range, maps, cells, params.min_seen_share);
+        // A gap whose cells mostly hold the surface's own heights is a seam of missing samples (measured strips too
+        // thin for the part's mask between them), not a hole.
+        if bottom_seen && reference - floor < params.seed_mm {
+            out.unmeasured.push(Unmeasured {
+                centroid_mm: s.centroid,
+                area_mm2: area,
+                reason: format!(
+                    "no data in strips, the cells between them at the surface's own height ({:+.3} mm): not a hole",
+                    floor - reference
+                ),
+            });
+            continue;
+        }
+        if let Some(c) = out.candidates.last_mut() {
+            c.defect = Some(out.defects.len());
+        }
+        let measured = hole_area(range, cells, params.travel_step_mm);
+        out.defects.push(Defect {
+            kind,
+            centroid_mm: s.centroid,
+            bbox_mm: s.bbox,
+            area_mm2: measured,
+            depth_mm: reference - floor,
+            volume_mm3: refs.iter().map(|r| (r - floor).max(0.0)).sum::<f64>()
+                * cell_area
+                * (measured / area),
+            confidence,
+            bottom_seen,
+            evidence: ev,
+        });
+    }
+    Ok(())
+}
+
+/// Stage 4: edge chips (cells of the expected outline, not the part, open to the grid's border) weighed by the
+/// rules; a notch without data where not even the belt is seen is unmeasured, not missing material.
+#[allow(clippy::too_many_arguments)]
+fn weigh_chips(
+    range: &RangeImage,
+    maps: &SurfaceMaps,
+    on_part: &[bool],
+    expected: &[bool],
+    open_to_border: &[bool],
+    rules: &mut SurfaceRules,
+    params: &DetectParams,
+    out: &mut Detection,
+) -> Result<(), CoreError> {
+    let (w, h) = (range.width, range.height);
+    let cell_area = range.spacing_mm[0] * range.spacing_mm[1];
+    let chip = |k: usize| !on_part[k] && expected[k] && open_to_border[k];
+    let (clabel, csizes) = components(w, h, chip, false);
+    if csizes.len() > 1 {
+        let depth = distance_to(w, h, |k| !expected[k]);
+        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); csizes.len()];
+        for k in 0..w * h {
+            if clabel[k] != 0 {
+                cells[clabel[k] as usize].push(k);
+            }
+        }
+        for c in cells
+            .iter()
+            .filter(|c| c.len() as f64 * cell_area >= params.min_gap_mm2)
+        {
+            let notch = f64::from(c.iter().map(|&k| depth[k]).fold(0.0f32, f32::max))
+                * range.spacing_mm[0].min(range.spacing_mm[1]);
+            let s = shape(range, c, |_| 1.0);
+            let ev = Evidence {
+                curvature_per_mm: 0.0,
+                direction: 0.0,
+                gap_mm: 0.0,
+                height_similarity_mm: 50.0,
+                elongation: s.elongation,
+                edge_notch_mm: notch,
+                cells: c.len(),
+            };
+            let area = c.len() as f64 * cell_area;
+            // Missing material shows the belt (or a lower surface) where the part should be; a notch of cells
+            // without any data is missing measurement, not missing material.
+            let seen = c
+                .iter()
+                .filter(|&&k| maps.class[k] == CellClass::Belt)
+                .count();
+            if (seen as f64) < params.min_seen_share * c.len() as f64 {
+                if ev.edge_notch_mm >= params.edge_band_mm {
+                    out.unmeasured.push(Unmeasured {
+                        centroid_mm: s.centroid,
+                        area_mm2: area,
+                        reason: format!(
+                            "no data {notch:.2} mm into the part's outline (the belt is not seen there either)"
+                        ),
+                    });
+                }
+                continue;
+            }
+            let (kind, confidence, reported) = weigh(
+                out,
+                CandidateSource::Edge,
+                s.centroid,
+                area,
+                ev,
+                rules,
+                params,
+            )?;
+            if !reported {
+                continue;
+            }
+            let mut refs: Vec<f64> = c
+                .iter()
+                .map(|&k| f64::from(maps.reference_mm[k]))
+                .filter(|v| v.is_finite())
+                .collect();
+            let area = c.len() as f64 * cell_area;
+            if let Some(c) = out.candidates.last_mut() {
+                c.defect = Some(out.defects.len());
+            }
+            out.defects.push(Defect {
+                kind,
+                centroid_mm: s.centroid,
+                bbox_mm: s.bbox,
+                area_mm2: area,
+                depth_mm: median(&mut refs),
+                volume_mm3: refs.iter().sum::<f64>() * cell_area,
+                confidence,
+                bottom_seen: false,
+                evidence: ev,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// The kinds of defect.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum DefectKind {
@@ -513,7 +820,6 @@ pub fn detect(
     out.part_bbox_mm = part_bbox(range, &opened);
     // Expected outline: the hull of the part, where the reference expects surface.
     let expected_mask = expected_outline(w, h, &opened, &maps.reference_mm);
-    let expected = |k: usize| expected_mask[k];
     let expected_cells = expected_mask.iter().filter(|&&e| e).count();
     out.coverage = opened
         .iter()
@@ -558,265 +864,21 @@ pub fn detect(
         ));
         candidates.truncate(params.max_candidates);
     }
-    for (cells, sign) in &candidates {
-        let s = shape(range, cells, |k| f64::from(maps.deviation_mm[k]).abs());
-        let (mut sum, mut sum_abs, mut curv) = (0.0, 0.0, 0.0f64);
-        let mut peak = 0.0f64;
-        let mut with_curvature = 0usize;
-        for &k in cells {
-            let d = f64::from(maps.deviation_mm[k]);
-            if d.is_finite() {
-                sum += d;
-                sum_abs += d.abs();
-                if d * sign > peak {
-                    peak = d * sign;
-                }
-            }
-            if let Some(g) = geometry_at(range, maps, k % w, k / w) {
-                curv = curv.max(g.mean_curvature.abs());
-                with_curvature += 1;
-            }
-        }
-        if 2 * with_curvature < cells.len() {
-            // Most of the region lies where the derivative window is incomplete (a narrow fragment between
-            // gaps): bound its curvature from its height and size as a bell's top, pi² A / (2 r²).
-            let r2 = cells.len() as f64 * cell_area / std::f64::consts::PI;
-            curv = curv.max(std::f64::consts::PI.powi(2) * peak / (2.0 * r2));
-        }
-        let ev = Evidence {
-            curvature_per_mm: curv,
-            direction: if sum_abs > 0.0 { sum / sum_abs } else { 0.0 },
-            gap_mm: 0.0,
-            height_similarity_mm: 50.0,
-            elongation: s.elongation,
-            edge_notch_mm: 0.0,
-            cells: cells.len(),
-        };
-        let area = cells.len() as f64 * cell_area;
-        let (kind, confidence, reported) = weigh(
-            &mut out,
-            CandidateSource::Surface,
-            s.centroid,
-            area,
-            ev,
-            rules,
-            params,
-        )?;
-        if reported && matches!(kind, DefectKind::Bump | DefectKind::Dent) {
-            if let Some(step) = params.travel_step_mm.filter(|s| s.is_finite() && *s > 0.0) {
-                let width = half_peak_travel_width(range, cells, &maps.deviation_mm, *sign, peak);
-                if width < params.min_region_travel_steps * step {
-                    // Not a surface the samples resolve: out of the candidates (learning never sees it) and into
-                    // the unmeasured.
-                    out.candidates.pop();
-                    out.unmeasured.push(Unmeasured {
-                        centroid_mm: s.centroid,
-                        area_mm2: area,
-                        reason: format!(
-                            "{peak:.2} mm off the reference, but only {width:.2} mm wide along the travel at half \
-                             that: under {} travel steps of {step:.2} mm, as one frame's misplaced samples are (a \
-                             bump or dent 2 mm across is 1 mm wide there)",
-                            params.min_region_travel_steps
-                        ),
-                    });
-                    continue;
-                }
-            }
-        }
-        if !reported {
-            // Small, steep and nameless: heights a wrong stripe index or a glint put there, not a surface.
-            out.unmeasured.push(Unmeasured {
-                centroid_mm: s.centroid,
-                area_mm2: area,
-                reason: format!(
-                    "{peak:.2} mm off the reference over {area:.2} mm² with a curvature of {curv:.1}/mm: outlier \
-                     heights, not a surface the rules can name"
-                ),
-            });
-            continue;
-        }
-        let mut d = Defect {
-            kind,
-            centroid_mm: s.centroid,
-            bbox_mm: s.bbox,
-            area_mm2: area,
-            depth_mm: peak,
-            volume_mm3: sum_abs * cell_area,
-            confidence,
-            bottom_seen: true,
-            evidence: ev,
-        };
-        if matches!(kind, DefectKind::Bump | DefectKind::Dent) {
-            measure_bell(range, maps, &s, *sign, peak, grow_mm, &mut d);
-        }
-        if let Some(c) = out.candidates.last_mut() {
-            c.defect = Some(out.defects.len());
-        }
-        out.defects.push(d);
-    }
+    weigh_regions(&candidates, range, maps, grow_mm, rules, params, &mut out)?;
     // 3. Gaps: regions without part data that the outside cannot reach.
     let (gaps, open_to_border) = enclosed_gaps(w, h, &opened);
-    for cells in &gaps {
-        let area = cells.len() as f64 * cell_area;
-        if area < params.min_gap_mm2 {
-            continue;
-        }
-        let expected_share = cells
-            .iter()
-            .filter(|&&k| maps.reference_mm[k].is_finite())
-            .count() as f64
-            / cells.len() as f64;
-        if expected_share < 0.5 {
-            // The reference has no surface here either: a designed opening.
-            continue;
-        }
-        let s = shape(range, cells, |_| 1.0);
-        let similarity = height_similarity(range, maps, cells, &s, band, &opened);
-        let ev = Evidence {
-            curvature_per_mm: 0.0,
-            direction: 0.0,
-            gap_mm: 2.0 * (area / std::f64::consts::PI).sqrt(),
-            height_similarity_mm: similarity,
-            elongation: s.elongation,
-            edge_notch_mm: 0.0,
-            cells: cells.len(),
-        };
-        let (kind, confidence, reported) = weigh(
-            &mut out,
-            CandidateSource::Gap,
-            s.centroid,
-            area,
-            ev,
-            rules,
-            params,
-        )?;
-        if !reported {
-            out.unmeasured.push(Unmeasured {
-                centroid_mm: s.centroid,
-                area_mm2: area,
-                reason: if similarity >= 50.0 {
-                    "no data and the surface around it is not measured on every side".into()
-                } else if similarity > 0.5 {
-                    format!("no data, with {similarity:.2} mm between the heights on either side (a shadow or an edge)")
-                } else {
-                    gap_reason(rules, &ev, confidence, params)
-                },
-            });
-            continue;
-        }
-        let (refs, bottom_seen, floor, reference) =
-            gap_depth(range, maps, cells, params.min_seen_share);
-        // A gap whose cells mostly hold the surface's own heights is a seam of missing samples (measured strips too
-        // thin for the part's mask between them), not a hole.
-        if bottom_seen && reference - floor < params.seed_mm {
-            out.unmeasured.push(Unmeasured {
-                centroid_mm: s.centroid,
-                area_mm2: area,
-                reason: format!(
-                    "no data in strips, the cells between them at the surface's own height ({:+.3} mm): not a hole",
-                    floor - reference
-                ),
-            });
-            continue;
-        }
-        if let Some(c) = out.candidates.last_mut() {
-            c.defect = Some(out.defects.len());
-        }
-        let measured = hole_area(range, cells, params.travel_step_mm);
-        out.defects.push(Defect {
-            kind,
-            centroid_mm: s.centroid,
-            bbox_mm: s.bbox,
-            area_mm2: measured,
-            depth_mm: reference - floor,
-            volume_mm3: refs.iter().map(|r| (r - floor).max(0.0)).sum::<f64>()
-                * cell_area
-                * (measured / area),
-            confidence,
-            bottom_seen,
-            evidence: ev,
-        });
-    }
+    weigh_gaps(&gaps, range, maps, band, &opened, rules, params, &mut out)?;
     // 4. Edge chips: expected cells, not the part, open to the outside.
-    let chip = |k: usize| !on_part(k) && expected(k) && open_to_border[k];
-    let (clabel, csizes) = components(w, h, chip, false);
-    if csizes.len() > 1 {
-        let depth = distance_to(w, h, |k| !expected(k));
-        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); csizes.len()];
-        for k in 0..w * h {
-            if clabel[k] != 0 {
-                cells[clabel[k] as usize].push(k);
-            }
-        }
-        for c in cells
-            .iter()
-            .filter(|c| c.len() as f64 * cell_area >= params.min_gap_mm2)
-        {
-            let notch = f64::from(c.iter().map(|&k| depth[k]).fold(0.0f32, f32::max))
-                * range.spacing_mm[0].min(range.spacing_mm[1]);
-            let s = shape(range, c, |_| 1.0);
-            let ev = Evidence {
-                curvature_per_mm: 0.0,
-                direction: 0.0,
-                gap_mm: 0.0,
-                height_similarity_mm: 50.0,
-                elongation: s.elongation,
-                edge_notch_mm: notch,
-                cells: c.len(),
-            };
-            let area = c.len() as f64 * cell_area;
-            // Missing material shows the belt (or a lower surface) where the part should be; a notch of cells
-            // without any data is missing measurement, not missing material.
-            let seen = c
-                .iter()
-                .filter(|&&k| maps.class[k] == CellClass::Belt)
-                .count();
-            if (seen as f64) < params.min_seen_share * c.len() as f64 {
-                if ev.edge_notch_mm >= params.edge_band_mm {
-                    out.unmeasured.push(Unmeasured {
-                        centroid_mm: s.centroid,
-                        area_mm2: area,
-                        reason: format!(
-                            "no data {notch:.2} mm into the part's outline (the belt is not seen there either)"
-                        ),
-                    });
-                }
-                continue;
-            }
-            let (kind, confidence, reported) = weigh(
-                &mut out,
-                CandidateSource::Edge,
-                s.centroid,
-                area,
-                ev,
-                rules,
-                params,
-            )?;
-            if !reported {
-                continue;
-            }
-            let mut refs: Vec<f64> = c
-                .iter()
-                .map(|&k| f64::from(maps.reference_mm[k]))
-                .filter(|v| v.is_finite())
-                .collect();
-            let area = c.len() as f64 * cell_area;
-            if let Some(c) = out.candidates.last_mut() {
-                c.defect = Some(out.defects.len());
-            }
-            out.defects.push(Defect {
-                kind,
-                centroid_mm: s.centroid,
-                bbox_mm: s.bbox,
-                area_mm2: area,
-                depth_mm: median(&mut refs),
-                volume_mm3: refs.iter().sum::<f64>() * cell_area,
-                confidence,
-                bottom_seen: false,
-                evidence: ev,
-            });
-        }
-    }
+    weigh_chips(
+        range,
+        maps,
+        &opened,
+        &expected_mask,
+        &open_to_border,
+        rules,
+        params,
+        &mut out,
+    )?;
     if out.coverage < 0.9 {
         out.warnings.push(format!(
             "only {:.0}% of the part's outline holds data: unmeasured surface cannot be judged",
