@@ -76,6 +76,8 @@ pub fn score_scan(seed: u64, frames: usize, spacetime: bool) -> Result<ScanFigur
         .with_context(|| format!("random scene {seed}"))?;
     let cal = match calibrate_sensor(&calibration, seed.wrapping_mul(7919)) {
         Ok(c) => c,
+        // A refusal of the core's calibration says so itself.
+        Err(stripe3d_sim::SimError::Sensor(e)) => return Ok(failed(e.to_string())),
         Err(e) => return Ok(failed(format!("calibration: {e}"))),
     };
     let spacetime = spacetime && Spacetime::for_scan(sensor, &cal.full, step).is_some();
