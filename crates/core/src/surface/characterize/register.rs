@@ -1,5 +1,6 @@
-//! A golden scan registered to a part's scan: rigid in x-y and height, from a coarse search over shifts to a
-//! least-squares refinement, with the golden's walls left out.
+//! A golden scan registered to a part's scan: rigid in x-y and height, a coarse search over shifts and small
+//! rotations refined by halving steps, minimising the mean clipped height difference; on the golden part's walls its
+//! reference heights span the wall rather than guess where it is.
 
 use super::*;
 
