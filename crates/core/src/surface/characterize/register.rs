@@ -1,6 +1,7 @@
 //! A golden scan registered to a part's scan: rigid in x-y and height, a coarse search over shifts and small
-//! rotations refined by halving steps, minimising the mean clipped height difference; on the golden part's walls its
-//! reference heights span the wall rather than guess where it is.
+//! rotations refined by halving steps, minimising the mean clipped height difference; on the golden part's walls any height
+//! within the span the golden part shows around a point is taken as the reference, since neither scan pins down where
+//! the wall is.
 
 use super::*;
 
