@@ -215,7 +215,7 @@ pub fn load_product(
 }
 
 /// Builds the report of a finished inspection (with the knowledge base's verdict when a product was given).
-pub fn report_json(
+pub fn build_report(
     range: &RangeImage,
     i: &Inspection,
     input: &str,
@@ -530,7 +530,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         None => None,
     };
     let both = ctx.as_ref().zip(assessment.as_ref());
-    write_report(&args.out, &report_json(&range, &inspection, &input, both))?;
+    write_report(&args.out, &build_report(&range, &inspection, &input, both))?;
     write_picture(
         &args.out.join("defects.png"),
         &defects_picture(&range, &d.defects),

@@ -59,6 +59,19 @@ const NO_LABEL: u16 = u16::MAX;
 /// "No segment".
 const NO_SEGMENT: u32 = u32::MAX;
 
+/// A stripe point of row `row` at column `x` with the tests' usual peak and width.
+#[cfg(test)]
+fn test_point(row: u32, x: f64) -> StripePoint {
+    StripePoint {
+        row,
+        x,
+        intensity: 100.0,
+        width: 4.0,
+        score: 1.0,
+        cut: false,
+    }
+}
+
 /// Largest [`CodingParams::max_outlier_run`]: the row passes visit every pair of points this many apart.
 pub const MAX_OUTLIER_RUN: usize = 16;
 

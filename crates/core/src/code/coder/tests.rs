@@ -2,18 +2,8 @@
 //! pruned passes against the full ones.
 
 use super::*;
+use crate::code::test_point as point;
 use crate::sensor::Sensor;
-
-fn point(row: u32, x: f64) -> StripePoint {
-    StripePoint {
-        row,
-        x,
-        intensity: 100.0,
-        width: 4.0,
-        score: 1.0,
-        cut: false,
-    }
-}
 
 /// Points of a flat surface at height `z` for all stripes whose column is in view, rows `rows`.
 fn flat(

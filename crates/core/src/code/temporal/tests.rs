@@ -2,17 +2,7 @@
 //! order, and what it never does (extrapolate, jump, guess).
 
 use super::*;
-
-fn point(row: u32, x: f64) -> StripePoint {
-    StripePoint {
-        row,
-        x,
-        intensity: 100.0,
-        width: 4.0,
-        score: 1.0,
-        cut: false,
-    }
-}
+use crate::code::test_point as point;
 
 /// Frames of one row with stripes 0, 1, 2 at columns 100, 150, 200 (shifted by `drift` px per frame), every
 /// point coded and row-confident.
