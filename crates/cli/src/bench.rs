@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
+use stripe3d_core::extract::lines::LineParams;
 use stripe3d_core::extract::{ExtractParams, Extraction, Extractor, Method, Threshold};
 use stripe3d_core::{Image, Sensor};
 use stripe3d_io::images::{FrameData, read_frame_native};
@@ -633,10 +634,17 @@ fn accuracy(frames: usize) -> Result<()> {
             None
         });
         for (mi, &m) in methods.iter().enumerate() {
+            // Each scan line's own estimate: the fit along the lines would average neighbouring lines' noise,
+            // which the bound of one (summed) scan line does not describe.
+            let defaults = ExtractParams::default();
             let params = ExtractParams {
                 method: m,
                 threshold: Threshold::Auto,
-                ..ExtractParams::default()
+                lines: defaults.lines.map(|l| LineParams {
+                    fit_half_lines: 0,
+                    ..l
+                }),
+                ..defaults
             };
             let mut ex = Extractor::new(params)?;
             let mut out = Extraction::default();

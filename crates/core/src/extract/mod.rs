@@ -30,7 +30,7 @@ use crate::rules::RuleBase;
 use evidence::{
     NoiseMap, NoiseScratch, SMOOTH_NOISE_GAIN, SumScale, smoothed, sum_scale, summed_line,
 };
-use lines::{LineParams, Node, link_lines};
+use lines::{FitScratch, LineParams, Node, fit_along_lines, link_lines};
 use peaks::{Peak, dominant_peaks, line_noise};
 use serde::{Deserialize, Serialize};
 use steger::KernelCache;
@@ -350,6 +350,8 @@ pub struct Extractor {
     detect_line: Vec<u16>,
     nodes: Vec<Node>,
     keep: Vec<bool>,
+    line_of: Vec<u32>,
+    fit_scratch: FitScratch,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -419,6 +421,8 @@ impl Extractor {
             detect_line: Vec::new(),
             nodes: Vec::new(),
             keep: Vec::new(),
+            line_of: Vec::new(),
+            fit_scratch: FitScratch::default(),
         })
     }
 
@@ -544,7 +548,17 @@ impl Extractor {
                 x: c.point.x,
                 snr: c.snr,
             }));
-            link_lines(&self.nodes, &lp, &mut self.keep);
+            link_lines(&self.nodes, &lp, &mut self.keep, &mut self.line_of);
+            fit_along_lines(
+                &mut self.nodes,
+                &self.keep,
+                &self.line_of,
+                lp.fit_half_lines,
+                &mut self.fit_scratch,
+            );
+            for (c, n) in self.candidates.iter_mut().zip(&self.nodes) {
+                c.point.x = n.x;
+            }
             let mut i = 0;
             let keep = &self.keep;
             self.candidates.retain(|_| {
@@ -698,9 +712,14 @@ impl Extractor {
                 Method::BlaisRioux8 => subpixel::blais_rioux(line, p, 4),
                 Method::Steger | Method::Steger2d => {
                     let s = steger::scale_for_width(stripe_sigma(line, p, bg));
-                    let kern = self.kernels.get(s);
                     if self.params.method == Method::Steger {
-                        steger::steger_1d_line(line, p.center(), kern)
+                        // Speckle moves a whole stripe's brightest pixel by up to its width, and the zero of the
+                        // smoothed derivative lies within one scale (the stripe's sigma) of it. A cut profile's
+                        // centre is off the sheet anyway, and a zero far from its brightest pixel is the smoothed
+                        // plateau beside the cut (a sheet's tail on a lit corner), not a stripe.
+                        let whole = subpixel::flank_asymmetry(line, p) <= self.params.cut_asymmetry;
+                        let reach = if whole { s } else { steger::MIN_REACH_PX };
+                        steger::steger_1d_line(line, p.center(), reach, self.kernels.get(s))
                     } else {
                         let axis = self.params.axis;
                         let (w, h) = (img.width() as isize, img.height() as isize);
@@ -712,7 +731,7 @@ impl Extractor {
                             img.get(x as usize, y as usize)
                                 .map_or(0.0, |q| f64::from(q.to_f32()))
                         };
-                        steger::steger_2d(pix, p.center() as isize, k as isize, kern)
+                        steger::steger_2d(pix, p.center() as isize, k as isize, self.kernels.get(s))
                     }
                 }
                 Method::Com => None,
