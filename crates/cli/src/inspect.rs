@@ -331,6 +331,53 @@ pub struct InspectOutcome {
 /// Parts of the same product looked at for recurring defects.
 const RECENT_PARTS: usize = 20;
 
+/// Detection's parameters for a seed threshold, with the product method's confidence where there is one.
+pub fn detect_params(
+    method: Option<&stripe3d_kb::model::Method>,
+    threshold_mm: f64,
+    travel_step_mm: Option<f64>,
+) -> DetectParams {
+    DetectParams {
+        seed_mm: threshold_mm,
+        // The default pair is 0.05 / 0.02 mm: growth at 40% of the seed threshold.
+        grow_mm: 0.4 * threshold_mm,
+        min_confidence: method.map_or(DetectParams::default().min_confidence, |m| {
+            m.surface.min_confidence
+        }),
+        travel_step_mm,
+        ..DetectParams::default()
+    }
+}
+
+/// The knowledge base's verdict on an inspected part of `ctx`'s product, with the recurrence of its defects among
+/// the product's last parts in `history`.
+pub fn assess_part(
+    ctx: &ProductContext,
+    history: Option<&History>,
+    range: &RangeImage,
+    inspection: &Inspection,
+) -> Result<Assessment> {
+    let d = &inspection.detection;
+    let origin = frame_origin(d);
+    let recent = match history {
+        Some(h) => h.recent_defects(&ctx.name, RECENT_PARTS)?,
+        None => Vec::new(),
+    };
+    let rec: Vec<f64> = d
+        .defects
+        .iter()
+        .map(|x| {
+            recurrence(
+                &recent,
+                x.kind,
+                [x.centroid_mm[0] - origin[0], x.centroid_mm[1] - origin[1]],
+            )
+        })
+        .collect();
+    let facts = part_facts(range, inspection, rec);
+    Ok(assess(&ctx.kb, &ctx.name, d, &facts)?)
+}
+
 /// Runs `stripe3d inspect`.
 pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
     let range_input = is_range_input(&args.frames);
@@ -468,18 +515,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         Some(g) => ReferenceSource::Golden(g),
         None => ReferenceSource::Fit(shape),
     };
-    let params = DetectParams {
-        seed_mm: threshold_mm,
-        // The default pair is 0.05 / 0.02 mm: growth at 40% of the seed threshold.
-        grow_mm: 0.4 * threshold_mm,
-        min_confidence: method
-            .as_ref()
-            .map_or(DetectParams::default().min_confidence, |m| {
-                m.surface.min_confidence
-            }),
-        travel_step_mm,
-        ..DetectParams::default()
-    };
+    let params = detect_params(method.as_ref(), threshold_mm, travel_step_mm);
     let started = Instant::now();
     let result = inspect(
         &range,
@@ -507,26 +543,7 @@ pub fn run_inspect(args: &InspectArgs) -> Result<InspectOutcome> {
         .extend(scan_warnings.iter().map(|w| format!("scan: {w}")));
     let d = &inspection.detection;
     let assessment = match &ctx {
-        Some(c) => {
-            let origin = frame_origin(d);
-            let recent = match &history {
-                Some(h) => h.recent_defects(&c.name, RECENT_PARTS)?,
-                None => Vec::new(),
-            };
-            let rec: Vec<f64> = d
-                .defects
-                .iter()
-                .map(|x| {
-                    recurrence(
-                        &recent,
-                        x.kind,
-                        [x.centroid_mm[0] - origin[0], x.centroid_mm[1] - origin[1]],
-                    )
-                })
-                .collect();
-            let facts = part_facts(&range, &inspection, rec);
-            Some(assess(&c.kb, &c.name, d, &facts)?)
-        }
+        Some(c) => Some(assess_part(c, history.as_ref(), &range, &inspection)?),
         None => None,
     };
     let both = ctx.as_ref().zip(assessment.as_ref());

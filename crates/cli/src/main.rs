@@ -21,6 +21,7 @@ mod inspect;
 mod knowledge;
 mod learning_bench;
 mod robustness_bench;
+mod run;
 mod scan;
 mod scan_bench;
 mod sensor_bench;
@@ -61,6 +62,8 @@ enum Command {
     Scan(scan::ScanArgs),
     /// Find, classify and measure the defects of a scanned part (bumps, dents, holes, scratches, edge chips).
     Inspect(inspect::InspectArgs),
+    /// On the line: frames from a source, every part on the belt found and inspected as it passes (JSON lines).
+    Run(run::RunArgs),
     /// The knowledge base: check a product's design, show, diff versions, start your own from the example.
     #[command(subcommand)]
     Kb(knowledge::KbCommand),
@@ -89,6 +92,7 @@ fn main() -> std::process::ExitCode {
         Command::Calibrate(args) => scan::run_calibrate(&args).map(|_| ()),
         Command::Scan(args) => scan::run_scan(&args).map(|_| ()),
         Command::Inspect(args) => inspect::run_inspect(&args).map(|_| ()),
+        Command::Run(args) => run::run(&args),
         Command::Kb(cmd) => knowledge::run_kb(&cmd),
         Command::Feedback(args) => knowledge::run_feedback(&args),
         Command::History(args) => knowledge::run_history(&args),

@@ -272,32 +272,14 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<Calibration> {
     Ok(cal)
 }
 
-fn is_image(p: &Path) -> bool {
-    p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-        ["png", "jpg", "jpeg", "pgm", "pnm", "tif", "tiff"]
-            .contains(&e.to_ascii_lowercase().as_str())
-    })
-}
-
 /// Expands folders into their images in name order, numbers by value (`frame_2` before `frame_10`, see
 /// [`stripe3d_io::files::natural_order`]).
 pub fn frame_list(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in inputs {
         if p.is_dir() {
-            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
-                .with_context(|| format!("{}: cannot list the folder", p.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| f.is_file() && is_image(f))
-                .collect();
-            files.sort_by(|a, b| {
-                let name = |p: &Path| {
-                    p.file_name()
-                        .map(|n| n.to_string_lossy().into_owned())
-                        .unwrap_or_default()
-                };
-                stripe3d_io::files::natural_order(&name(a), &name(b))
-            });
+            let files = stripe3d_io::source::images_in(p)
+                .with_context(|| format!("{}: cannot list the folder", p.display()))?;
             if files.is_empty() {
                 bail!(
                     "{}: the folder holds no PNG, JPEG, PGM or TIFF frames",

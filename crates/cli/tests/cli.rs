@@ -1420,3 +1420,225 @@ fn output_to_a_closed_pipe_ends_quietly() {
     assert!(!err.contains("panicked"), "{err}");
     assert!(o.status.success(), "{err}");
 }
+
+#[test]
+fn run_inspects_every_part_on_the_belt_as_it_passes_and_refuses_bad_sources() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let p = |name: &str| dir.path().join(name).display().to_string();
+    // The paper's sensor with the belt four times as fast (2 mm a frame): a part passes in about 100 frames.
+    let o = stripe3d(&[
+        "simulate",
+        "--scene",
+        "plate",
+        "--frames",
+        "1",
+        "--out",
+        &p("base"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let sensor = std::fs::read_to_string(dir.path().join("base/sensor.toml")).expect("sensor");
+    assert!(sensor.contains("speed_mm_s = 10.0"), "{sensor}");
+    std::fs::write(
+        dir.path().join("fast.toml"),
+        sensor.replace("speed_mm_s = 10.0", "speed_mm_s = 40.0"),
+    )
+    .expect("write");
+    let db = p("line.sqlite");
+    let o = stripe3d(&[
+        "run",
+        "--source",
+        "sim:plate",
+        "--product",
+        "cover-plate",
+        "--parts",
+        "2",
+        "--sensor",
+        &p("fast.toml"),
+        "--db",
+        &db,
+        "--out",
+        &p("parts"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let parts: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON object a line"))
+        .collect();
+    assert_eq!(parts.len(), 2, "{out}");
+    let x = |v: &serde_json::Value, i: usize| v["x_mm"][i].as_f64().expect("x_mm");
+    for (k, part) in parts.iter().enumerate() {
+        assert_eq!(part["part"], k + 1);
+        assert_eq!(part["product"], "cover-plate");
+        assert_eq!(part["complete"], true);
+        assert!(
+            ["accept", "rework", "reject"].contains(&part["verdict"].as_str().expect("verdict"))
+        );
+        // The 80 mm plate, found within a bin and the trailing face.
+        let length = x(part, 1) - x(part, 0);
+        assert!((length - 80.0).abs() <= 2.0, "{part}");
+        assert!(
+            part["first_frame"].as_u64() < part["last_frame"].as_u64(),
+            "{part}"
+        );
+        assert!(part["history_id"].is_i64(), "{part}");
+        assert!(
+            part["defects"].is_array() && part["diagnosis"].is_array(),
+            "{part}"
+        );
+        let report = dir.path().join(format!("parts/part-{}/report.json", k + 1));
+        assert!(report.is_file(), "{}", report.display());
+    }
+    // The second part follows the first by the pitch: its length and the default gap (the view's length and 10 mm).
+    let pitch = x(&parts[0], 0) - x(&parts[1], 0);
+    assert!(pitch > 180.0 && pitch < 220.0, "{pitch}");
+    assert!(
+        stderr(&o).contains("0 dropped; 2 part(s)"),
+        "{}",
+        stderr(&o)
+    );
+    let o = stripe3d(&["history", "--db", &db]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("line-part-2"));
+
+    // A recording replayed: the plate in view from the first frame, swept by the 60th.
+    let o = stripe3d(&["demo", "--out", &p("demo")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = stripe3d(&[
+        "simulate",
+        "--scene",
+        "plate",
+        "--frames",
+        "60",
+        "--sensor",
+        &p("fast.toml"),
+        "--out",
+        &p("rec"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let calib = p("demo/calib.toml");
+    let o = stripe3d(&[
+        "run",
+        "--source",
+        &format!("replay:{}", p("rec/frames")),
+        "--product",
+        "cover-plate",
+        "--sensor",
+        &p("fast.toml"),
+        "--calib",
+        &calib,
+        "--no-history",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(out.lines().count(), 1, "{out}");
+    let part: serde_json::Value =
+        serde_json::from_str(out.lines().next().expect("a part")).expect("JSON");
+    assert_eq!(part["first_frame"], 0, "{part}");
+    // Stopped while the plate is in view: handed on as incomplete, and said so.
+    let o = stripe3d(&[
+        "run",
+        "--source",
+        &format!("replay:{}", p("rec/frames")),
+        "--product",
+        "cover-plate",
+        "--sensor",
+        &p("fast.toml"),
+        "--calib",
+        &calib,
+        "--no-history",
+        "--frames",
+        "20",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let part: serde_json::Value = serde_json::from_str(
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .next()
+            .expect("a part"),
+    )
+    .expect("JSON");
+    assert_eq!(part["verdict"], "incomplete", "{part}");
+    assert!(
+        part["warnings"][0]
+            .as_str()
+            .is_some_and(|w| w.contains("still in view")),
+        "{part}"
+    );
+
+    // Refusals: each names what is wrong, exits non-zero, prints no part.
+    let refused = |args: &[&str], says: &str| {
+        let o = stripe3d(args);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(o.stdout.is_empty(), "{args:?}");
+        assert!(stderr(&o).contains(says), "{args:?}: {}", stderr(&o));
+    };
+    let fast = p("fast.toml");
+    refused(
+        &["run", "--source", "camera:0", "--product", "cover-plate"],
+        "give sim:SCENE, replay:DIR or folder:DIR",
+    );
+    refused(
+        &[
+            "run",
+            "--source",
+            "sim:teapot",
+            "--product",
+            "cover-plate",
+            "--no-history",
+        ],
+        "no built-in scene `teapot`",
+    );
+    refused(
+        &[
+            "run",
+            "--source",
+            "sim:plate",
+            "--product",
+            "cover-plate",
+            "--gap-mm",
+            "10",
+            "--no-history",
+            "--sensor",
+            &fast,
+        ],
+        "at least the view's length",
+    );
+    refused(
+        &[
+            "run",
+            "--source",
+            "sim:plate",
+            "--product",
+            "demo-bracket",
+            "--no-history",
+        ],
+        "golden scan",
+    );
+    refused(
+        &[
+            "run",
+            "--source",
+            "replay:/no/such/folder",
+            "--product",
+            "cover-plate",
+            "--no-history",
+            "--sensor",
+            &fast,
+            "--calib",
+            &calib,
+        ],
+        "no such folder",
+    );
+    refused(
+        &[
+            "run",
+            "--source",
+            &format!("replay:{}", p("rec/frames")),
+            "--product",
+            "cover-plate",
+            "--no-history",
+        ],
+        "need --sensor",
+    );
+}

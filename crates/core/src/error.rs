@@ -168,4 +168,12 @@ pub enum CoreError {
         /// Stripe points extraction found in them.
         points: usize,
     },
+    /// A frame source failed (a camera, a recording, the simulator).
+    #[error("{source_name}: {message}")]
+    Source {
+        /// The source, as the user named it.
+        source_name: String,
+        /// What went wrong and what to do.
+        message: String,
+    },
 }

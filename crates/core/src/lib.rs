@@ -21,6 +21,7 @@ pub mod error;
 pub mod extract;
 pub mod geometry;
 pub mod image;
+pub mod line;
 pub mod rules;
 pub mod scan;
 pub mod sensor;

@@ -84,6 +84,31 @@ impl Scanner {
         out.points.extend_from_slice(&self.extraction.points);
     }
 
+    /// Extracts and codes one frame into `coded` and triangulates it into `out` as it is coded (before any
+    /// reconciliation across frames: the line's view of a frame the moment it arrives); returns its coding counts.
+    pub fn code_and_profile_into<T: Pixel>(
+        &mut self,
+        frame: ImageView<'_, T>,
+        index: usize,
+        travel_mm: f64,
+        cal: &Calibration,
+        coded: &mut CodedFrame,
+        out: &mut Profile,
+    ) -> CodingStats {
+        self.code_into(frame, coded);
+        profile_into(
+            index,
+            travel_mm,
+            &coded.points,
+            &coded.coding,
+            &cal.full,
+            Some(&cal.linear),
+            self.model,
+            out,
+        );
+        coded.coding.stats
+    }
+
     /// The model this scanner triangulates with.
     pub fn model(&self) -> ModelKind {
         self.model

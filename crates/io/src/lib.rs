@@ -19,6 +19,7 @@ pub mod history;
 pub mod images;
 pub mod knowledge;
 pub mod report;
+pub mod source;
 pub mod truth;
 pub mod validation;
 

@@ -19,6 +19,7 @@
 #![deny(missing_docs)]
 
 pub mod batch;
+pub mod belt;
 pub mod evaluate;
 pub mod heightfield;
 pub mod pipeline;
