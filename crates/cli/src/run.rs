@@ -82,6 +82,9 @@ pub struct RunArgs {
     /// Also write each part's range image, report.json and pictures to DIR/part-N/.
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
+    /// Threads extracting, coding and triangulating frames [default: every core].
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
     /// Stripe coding's measuring range and parameters (as `stripe3d scan`'s).
     #[command(flatten)]
     pub coding: CodingArgs,
@@ -179,7 +182,8 @@ struct Processed {
 
 /// The frames the source delivered, and those dropped because the chain was behind.
 struct Feed {
-    frames: Receiver<SourceFrame>,
+    /// Frames with their sequence number in the queue (a live source's dropped frames leave gaps in `index`).
+    frames: Receiver<(u64, SourceFrame)>,
     dropped: std::sync::Arc<std::sync::atomic::AtomicU64>,
     error: std::sync::Arc<std::sync::Mutex<Option<String>>>,
 }
@@ -187,13 +191,13 @@ struct Feed {
 /// Runs the source on its own thread into a queue of `capacity` frames: a live source's frames that find the queue
 /// full are dropped and counted; others wait.
 fn feed(mut source: Box<dyn FrameSource>, capacity: usize, max_frames: Option<u64>) -> Feed {
-    let (tx, rx): (SyncSender<SourceFrame>, _) = sync_channel(capacity.max(1));
+    let (tx, rx): (SyncSender<(u64, SourceFrame)>, _) = sync_channel(capacity.max(1));
     let dropped = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
     let error = std::sync::Arc::new(std::sync::Mutex::new(None));
     let (d, e) = (dropped.clone(), error.clone());
     std::thread::spawn(move || {
         let live = source.live_rate_hz().is_some();
-        let mut n = 0u64;
+        let (mut n, mut queued) = (0u64, 0u64);
         loop {
             if max_frames.is_some_and(|m| n >= m) {
                 return;
@@ -210,15 +214,17 @@ fn feed(mut source: Box<dyn FrameSource>, capacity: usize, max_frames: Option<u6
             };
             n += 1;
             if live {
-                match tx.try_send(frame) {
-                    Ok(()) => {}
+                match tx.try_send((queued, frame)) {
+                    Ok(()) => queued += 1,
                     Err(TrySendError::Full(_)) => {
                         d.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     }
                     Err(TrySendError::Disconnected(_)) => return,
                 }
-            } else if tx.send(frame).is_err() {
+            } else if tx.send((queued, frame)).is_err() {
                 return;
+            } else {
+                queued += 1;
             }
         }
     });
@@ -227,6 +233,46 @@ fn feed(mut source: Box<dyn FrameSource>, capacity: usize, max_frames: Option<u6
         dropped,
         error,
     }
+}
+
+/// One frame through the per-frame stages, with its place in the queue.
+struct Worked {
+    seq: u64,
+    index: u64,
+    travel_mm: f64,
+    coded: CodedFrame,
+    profile: Profile,
+}
+
+/// Extracts, codes and triangulates one frame (its travel from the encoder, else the conveyor's nominal speed).
+fn work(
+    scanner: &mut Scanner,
+    cal: &Calibration,
+    conveyor: &stripe3d_core::Conveyor,
+    (w, h): (usize, usize),
+    frame: SourceFrame,
+) -> Result<(u64, f64, CodedFrame, Profile), String> {
+    if (frame.image.width(), frame.image.height()) != (w, h) {
+        return Err(format!(
+            "frame {}: {}x{} pixels, but the calibrated camera has {w}x{h}",
+            frame.index,
+            frame.image.width(),
+            frame.image.height()
+        ));
+    }
+    let travel = frame
+        .encoder_mm
+        .unwrap_or_else(|| conveyor.travel_mm(frame.index as usize));
+    let (mut coded, mut profile) = (CodedFrame::default(), Profile::default());
+    scanner.code_and_profile_into(
+        frame.image.view(),
+        frame.index as usize,
+        travel,
+        cal,
+        &mut coded,
+        &mut profile,
+    );
+    Ok((frame.index, travel, coded, profile))
 }
 
 /// The inspection of one part: its range image cut from the frames that saw it, inspected and judged.
@@ -415,7 +461,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let (coding, range_mm) = args.coding.resolve(&cal)?;
     let extract = extract_params(&method.scan.extraction)?;
     let extraction = extract.method;
-    let mut scanner = Scanner::new(&cal, extract, coding, ModelKind::Full)?;
+    let scanner = Scanner::new(&cal, extract, coding, ModelKind::Full)?;
     let conveyor = sensor.conveyor.clone().unwrap_or_default();
     let view = view_span_mm(&cal, [range_mm.0.max(0.0), range_mm.1]);
     // Parts ride lengthwise: a run shorter than half the product's length is debris (a stray reading, a chip on the
@@ -439,6 +485,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         out: args.out.clone(),
     };
     let feed = feed(source, args.queue, args.frames);
+    let (feed_error, feed_dropped) = (feed.error.clone(), feed.dropped.clone());
     let (w, h) = (sensor.camera.width as usize, sensor.camera.height as usize);
     let mut kept: VecDeque<Processed> = VecDeque::new();
     let (mut frames, mut parts, mut verdicts) = (0u64, 0usize, std::collections::BTreeMap::new());
@@ -469,52 +516,80 @@ pub fn run(args: &RunArgs) -> Result<()> {
         Ok(false)
     };
     let mut stopped = false;
-    for frame in feed.frames.iter() {
-        if (frame.image.width(), frame.image.height()) != (w, h) {
-            bail!(
-                "frame {}: {}x{} pixels, but the calibrated camera has {w}x{h}",
-                frame.index,
-                frame.image.width(),
-                frame.image.height()
-            );
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .max(1);
+    let inputs = std::sync::Mutex::new(feed.frames);
+    let (results_tx, results) = sync_channel::<Result<Worked, String>>(args.queue.max(1));
+    std::thread::scope(|scope| -> Result<()> {
+        // Workers: each its own scanner, frames taken in turn from the queue, results tagged by sequence number.
+        for _ in 0..threads {
+            let (inputs, results_tx, mut scanner) = (&inputs, results_tx.clone(), scanner.clone());
+            let (cal, conveyor) = (&cal, &conveyor);
+            scope.spawn(move || {
+                loop {
+                    let next = match inputs.lock() {
+                        Ok(rx) => rx.recv(),
+                        Err(_) => return,
+                    };
+                    let Ok((seq, frame)) = next else {
+                        return;
+                    };
+                    let worked = work(&mut scanner, cal, conveyor, (w, h), frame).map(
+                        |(index, travel_mm, coded, profile)| Worked {
+                            seq,
+                            index,
+                            travel_mm,
+                            coded,
+                            profile,
+                        },
+                    );
+                    if results_tx.send(worked).is_err() {
+                        return;
+                    }
+                }
+            });
         }
-        let travel = frame
-            .encoder_mm
-            .unwrap_or_else(|| conveyor.travel_mm(frame.index as usize));
-        let (mut coded, mut profile) = (CodedFrame::default(), Profile::default());
-        scanner.code_and_profile_into(
-            frame.image.view(),
-            frame.index as usize,
-            travel,
-            &cal,
-            &mut coded,
-            &mut profile,
-        );
-        frames += 1;
-        let found = tracker.add(frame.index, travel, &profile);
-        kept.push_back(Processed {
-            index: frame.index,
-            travel_mm: travel,
-            coded,
-        });
-        if handle(found, &kept, &mut parts, &mut verdicts)? {
-            stopped = true;
-            break;
+        drop(results_tx);
+        // Owned here: returning early (the parts asked for are done, or an error) drops it, and the workers stop.
+        let results = results;
+        // The frames in queue order, whatever order the workers finish them in.
+        let mut waiting = std::collections::BTreeMap::new();
+        let mut next_seq = 0u64;
+        for r in results.iter() {
+            let r = r.map_err(anyhow::Error::msg)?;
+            waiting.insert(r.seq, r);
+            while let Some(r) = waiting.remove(&next_seq) {
+                next_seq += 1;
+                frames += 1;
+                let found = tracker.add(r.index, r.travel_mm, &r.profile);
+                kept.push_back(Processed {
+                    index: r.index,
+                    travel_mm: r.travel_mm,
+                    coded: r.coded,
+                });
+                if handle(found, &kept, &mut parts, &mut verdicts)? {
+                    stopped = true;
+                    return Ok(());
+                }
+                // Memory stays flat: only the frames an open part was seen in are kept.
+                let oldest = tracker.oldest_open_frame().unwrap_or(r.index + 1);
+                while kept.front().is_some_and(|p| p.index < oldest) {
+                    kept.pop_front();
+                }
+            }
         }
-        // Memory stays flat: only the frames an open part was seen in are kept.
-        let oldest = tracker.oldest_open_frame().unwrap_or(frame.index + 1);
-        while kept.front().is_some_and(|p| p.index < oldest) {
-            kept.pop_front();
-        }
-    }
-    if let Some(e) = feed.error.lock().ok().and_then(|mut e| e.take()) {
+        Ok(())
+    })?;
+    if let Some(e) = feed_error.lock().ok().and_then(|mut e| e.take()) {
         bail!("{e}");
     }
     if !stopped {
         let open = tracker.finish();
         handle(open, &kept, &mut parts, &mut verdicts)?;
     }
-    let dropped = feed.dropped.load(std::sync::atomic::Ordering::Relaxed);
+    let dropped = feed_dropped.load(std::sync::atomic::Ordering::Relaxed);
     let seconds = started.elapsed().as_secs_f64();
     eprintln!(
         "{frames} frames in {seconds:.1} s ({:.0} frames/s), {dropped} dropped; {parts} part(s): {}; {} too short to \

@@ -1535,6 +1535,23 @@ fn run_inspects_every_part_on_the_belt_as_it_passes_and_refuses_bad_sources() {
     let part: serde_json::Value =
         serde_json::from_str(out.lines().next().expect("a part")).expect("JSON");
     assert_eq!(part["first_frame"], 0, "{part}");
+    // The same parts whatever the number of threads.
+    let o1 = stripe3d(&[
+        "run",
+        "--source",
+        &format!("replay:{}", p("rec/frames")),
+        "--product",
+        "cover-plate",
+        "--sensor",
+        &p("fast.toml"),
+        "--calib",
+        &calib,
+        "--no-history",
+        "--threads",
+        "1",
+    ]);
+    assert!(o1.status.success(), "{}", stderr(&o1));
+    assert_eq!(o1.stdout, o.stdout);
     // Stopped while the plate is in view: handed on as incomplete, and said so.
     let o = stripe3d(&[
         "run",
