@@ -55,7 +55,9 @@ pub struct LineParams {
 
 /// Default of [`LineParams::fit_half_lines`]. Measured on the validation frames of another renderer (not tuned on):
 /// 0, 1, 2 and 3 give a median RMS of 0.105, 0.090, 0.078 and 0.074 px at the same recall; on the random scenes the
-/// median 0.112, 0.094 and 0.086 px for 0, 2 and 3. Longer windows gain less and widen what a bend smears.
+/// median 0.112, 0.094 and 0.086 px for 0, 2 and 3. Longer windows gain less and widen what a bend smears. The
+/// cost: the top of a small bump or dent is read flatter (`stripe3d bench defects`: median depth error 0.0075 mm
+/// with 3, 0.0028 mm with 0, the share within 0.03 mm the same).
 pub const DEFAULT_FIT_HALF_LINES: u32 = 3;
 
 fn default_fit_half_lines() -> u32 {
